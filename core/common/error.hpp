@@ -1,0 +1,40 @@
+// Errors of the numerical core. Every failure the core reports is a brenier::Error with a
+// code from the small set below; the tools turn the code into an exit status and the server
+// (one function, server/status.cpp) into a gRPC status. The core never knows about either.
+#pragma once
+
+#include <stdexcept>
+#include <string>
+
+namespace brenier {
+
+enum class ErrorCode {
+  kInvalidArgument,     // bad mesh, bad option, wrong topology for the asked domain
+  kNotFound,            // a file or object that does not exist
+  kFailedPrecondition,  // asked for something whose prerequisite is not met
+  kNotConverged,        // a solver stopped without meeting its tolerance
+  kCancelled,           // the caller asked to stop
+  kResourceExhausted,   // a size limit was hit
+  kInternal,            // a broken invariant of ours (a bug)
+};
+
+const char* error_code_name(ErrorCode code);
+
+class Error : public std::runtime_error {
+ public:
+  Error(ErrorCode code, const std::string& message)
+      : std::runtime_error(message), code_(code) {}
+  ErrorCode code() const { return code_; }
+
+ private:
+  ErrorCode code_;
+};
+
+[[noreturn]] inline void fail(ErrorCode code, const std::string& message) {
+  throw Error(code, message);
+}
+[[noreturn]] inline void invalid(const std::string& message) {
+  throw Error(ErrorCode::kInvalidArgument, message);
+}
+
+}  // namespace brenier

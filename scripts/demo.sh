@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Installs dependencies, builds brenier-compute and runs the main job on embedded defaults:
+# for now, it inspects a few real meshes (a scanned face, a closed model, a defective one).
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+BUILD_DIR="${BUILD_DIR:-$ROOT/build}"
+
+bash "$ROOT/scripts/install-deps.sh"
+bash "$ROOT/scripts/fetch-data.sh"
+cmake -S "$ROOT" -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
+cmake --build "$BUILD_DIR" -j "$(nproc)" --target brenier-compute
+BC="$BUILD_DIR/tools/brenier-compute"
+M="$ROOT/data/meshes"
+
+for mesh in lion-head.off armadillo.off 3torus.off; do
+  echo "== brenier-compute inspect data/meshes/$mesh"
+  "$BC" inspect "$M/$mesh"
+  echo
+done
+echo "== brenier-compute inspect --cut-hole data/meshes/bunny00.off (a closed surface opened into a disk)"
+"$BC" inspect --cut-hole --domain disk "$M/bunny00.off"
+echo
+echo "== brenier-compute inspect data/meshes/blobby-shuffled.off (a defective mesh: exit code 2, one line on stderr)"
+set +e
+"$BC" inspect "$M/blobby-shuffled.off" >/dev/null
+echo "exit code $?"
+echo "== the same repaired with --fix-orientation --json"
+"$BC" inspect --fix-orientation --json "$M/blobby-shuffled.off"

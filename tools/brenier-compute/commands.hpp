@@ -1,0 +1,46 @@
+// brenier-compute: the engine on local files. Each subcommand registers itself on the app
+// and returns its exit status through run(); errors are thrown as brenier::Error and turned
+// into one stderr line and an exit code in one place (main.cpp).
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <functional>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+
+#include "mesh/io.hpp"
+#include "mesh/topology.hpp"
+#include "mesh/validate.hpp"
+
+namespace brenier::tools {
+
+/// Exit codes of every tool: 0 success, 2 bad input (the input's fault), 3 a solver that did
+/// not converge, 1 anything else (a bug of ours or the machine's).
+inline constexpr int kExitOk = 0;
+inline constexpr int kExitFailure = 1;
+inline constexpr int kExitBadInput = 2;
+inline constexpr int kExitNotConverged = 3;
+
+/// What a subcommand runs once CLI11 has parsed its options; returns the exit code.
+using Action = std::function<int()>;
+
+/// Options shared by every command that reads a mesh.
+struct MeshInputOptions {
+  std::string path;
+  std::string format;  // empty: detect
+  mesh::CleanOptions clean;
+  void add_to(CLI::App* app);
+  /// Reads and cleans; throws the read errors; the report tells the rest.
+  mesh::CleanMesh load() const;
+};
+
+void add_inspect(CLI::App& app, Action& action);
+
+/// JSON of a cleaning report's problems: [{severity, code, message, count}, ...].
+nlohmann::json problems_json(const mesh::Report& report);
+/// JSON of a topology: vertices, edges, faces, components, boundary_loops, euler, genus,
+/// manifold, class.
+nlohmann::json topology_json(const mesh::Topology& t);
+
+}  // namespace brenier::tools
