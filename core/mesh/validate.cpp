@@ -345,7 +345,7 @@ void check_trimesh(CleanMesh& cm, const CleanOptions& opt) {
                   forig(bad_face) + ")",
               1);
     } else if (opt.fix_orientation) {
-      // Flip the minority of each component so that most faces keep the input winding.
+      // Flip the minority of each open component so that most faces keep the input winding.
       UnionFind uf(nf);
       for (int f = 0; f < nf; ++f)
         for (int k = 0; k < 3; ++k)
@@ -355,10 +355,20 @@ void check_trimesh(CleanMesh& cm, const CleanOptions& opt) {
         ++total[uf.find(f)];
         flipped[uf.find(f)] += flip[f];
       }
+      // A closed component is then turned outward: positive enclosed (signed) volume.
+      std::vector<double> volume(nf, 0.0);
+      std::vector<char> open(nf, 0);
+      for (int f = 0; f < nf; ++f) {
+        Eigen::Vector3d p0 = m.V.row(m.F(f, 0)), p1 = m.V.row(m.F(f, 1)), p2 = m.V.row(m.F(f, 2));
+        double v = p0.dot(p1.cross(p2)) / 6.0;
+        volume[uf.find(f)] += flip[f] ? -v : v;
+        for (int k = 0; k < 3; ++k)
+          if (nbr[3 * f + k] < 0) open[uf.find(f)] = 1;
+      }
       int64_t n = 0;
       for (int f = 0; f < nf; ++f) {
         int root = uf.find(f);
-        bool invert = 2 * flipped[root] > total[root];
+        bool invert = open[root] ? 2 * flipped[root] > total[root] : volume[root] < 0;
         if (flip[f] != invert) {
           std::swap(m.F(f, 1), m.F(f, 2));
           ++n;

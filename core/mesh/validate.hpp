@@ -17,7 +17,8 @@ struct CleanOptions {
   /// Keep the component with the most faces instead of refusing several components.
   bool keep_largest_component = false;
   /// Flip faces so that each component is consistently oriented (fails on a non-orientable
-  /// surface) instead of refusing inconsistent orientation.
+  /// surface) instead of refusing inconsistent orientation: closed components face outward
+  /// (positive enclosed volume), open ones keep the winding of most of their faces.
   bool fix_orientation = false;
   /// A face is of zero area when twice its area <= tol * (its longest edge)^2, i.e. its
   /// smallest height is below tol times its longest edge.

@@ -142,9 +142,14 @@ TEST(Validate, FixOrientationRestoresAConsistentWinding) {
   EXPECT_EQ(clean(s).report.first_error()->code, "inconsistent_orientation");
   CleanMesh fixed = clean(s, {.fix_orientation = true});
   ASSERT_TRUE(fixed.valid());
-  // The majority kept its winding, so the result is the original outward orientation.
+  // A closed surface ends up facing outward: the original orientation.
   EXPECT_EQ(fixed.mesh.F, m.F);
   EXPECT_TRUE(validate(fixed.mesh).problems.empty());
+  // Even when most faces were inward.
+  PolygonSoup inward = soup_of(m);
+  for (int64_t f = 0; f < inward.num_faces(); ++f)
+    if (f % 3 != 0) std::swap(inward.indices[inward.face_offsets[f] + 1], inward.indices[inward.face_offsets[f] + 2]);
+  EXPECT_EQ(clean(inward, {.fix_orientation = true}).mesh.F, m.F);
 }
 
 TEST(Validate, FixOrientationRefusesAMoebiusBand) {
