@@ -42,6 +42,7 @@ int main(int argc, char** argv) {
   app.set_version_flag("--version", "brenier-compute 0.1.0");
   brenier::tools::Action action;
   brenier::tools::add_inspect(app, action);
+  brenier::tools::add_map(app, action);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -1,0 +1,331 @@
+#include "conformal/conformal_map.hpp"
+
+#include <Eigen/Dense>
+#include <cmath>
+#include <numbers>
+#include <queue>
+#include <vector>
+
+#include "common/check.hpp"
+#include "common/error.hpp"
+#include "conformal/mobius.hpp"
+#include "mesh/geometry.hpp"
+#include "mesh/topology.hpp"
+
+namespace brenier::conformal {
+namespace {
+
+// Boundary targets that make the boundary a polygon inscribed in a circle. For boundary
+// edge lengths L_i, the circle radius R solves sum_i 2 asin(L_i / 2R) = 2 pi (a decreasing
+// function of R, solved by bisection on log R); edge i then subtends the central angle
+// a_i = 2 asin(L_i / 2R), and the turning angle (the curvature of Def. 3.2 at a boundary
+// vertex) of an inscribed polygon at vertex i is (a_{i-1} + a_i) / 2. These sum to 2 pi
+// (Gauss-Bonnet for the disk, chi = 1). A fixed point of "curvature = these targets" is a
+// flat metric whose boundary is exactly a cyclic polygon: its layout has every boundary
+// vertex on one circle.
+// Also returns tau_i = tan(a_i / 2) (empty in the fallback), which gives the targets'
+// derivative: with s_i = du(b_i) + du(b_{i+1}), da_i = tau_i (s_i - sum_j tau_j s_j / sum_j tau_j),
+// so dKbar/du = (1/2) S^T diag(tau) S - (1/2) w w^T / sum(tau), w = S^T tau, where S is the
+// boundary-edge-by-vertex incidence (both endpoints 1).
+void inscribed_targets(const std::vector<double>& L, std::vector<double>& turning,
+                       std::vector<double>& tau) {
+  tau.clear();
+  const size_t m = L.size();
+  double lmax = 0, lsum = 0;
+  for (double l : L) {
+    lmax = std::max(lmax, l);
+    lsum += l;
+  }
+  turning.resize(m);
+  auto total = [&](double R) {
+    double s = 0;
+    for (double l : L) s += 2 * std::asin(std::min(1.0, l / (2 * R)));
+    return s;
+  };
+  double lo = lmax / 2, hi = lsum;  // total(lo) >= pi, total(hi) <= 2 pi (chords <= arcs)
+  if (total(lo) < 2 * std::numbers::pi) {
+    // One edge longer than the whole rest can span on a circle around an interior centre
+    // (only in very early iterations): fall back to turning angles proportional to length.
+    for (size_t i = 0; i < m; ++i)
+      turning[i] = std::numbers::pi * (L[(i + m - 1) % m] + L[i]) / lsum;
+    return;
+  }
+  for (int it = 0; it < 200 && hi - lo > 1e-15 * hi; ++it) {
+    double mid = std::sqrt(lo * hi);
+    (total(mid) > 2 * std::numbers::pi ? lo : hi) = mid;
+  }
+  double R = 0.5 * (lo + hi);
+  std::vector<double> a(m);
+  double sum = 0;
+  for (size_t i = 0; i < m; ++i) sum += a[i] = 2 * std::asin(std::min(1.0, L[i] / (2 * R)));
+  for (size_t i = 0; i < m; ++i) a[i] *= 2 * std::numbers::pi / sum;  // exact Gauss-Bonnet
+  for (size_t i = 0; i < m; ++i) turning[i] = 0.5 * (a[(i + m - 1) % m] + a[i]);
+  tau.resize(m);
+  for (size_t i = 0; i < m; ++i) tau[i] = std::tan(0.5 * a[i]);
+}
+
+// Lays out a flat intrinsic triangulation in the plane face by face (breadth-first), placing
+// each new vertex from the two of its face that are already placed and its two edge lengths.
+std::vector<Complex> layout(const IntrinsicTriangulation& T, const Eigen::VectorXd& u) {
+  const int nv = T.num_vertices(), nf = T.num_faces();
+  std::vector<Complex> pos(nv);
+  std::vector<char> placed(nv, 0), done(nf, 0);
+  auto third = [&](int h) {
+    // Face of h: p = origin(h), q = origin(next h), r = origin(next next h), counter-clockwise.
+    int hn = T.next(h), hp = T.next(hn);
+    int p = T.origin(h), q = T.origin(hn), r = T.origin(hp);
+    double a = T.length(h, u), b = T.length(hn, u), c = T.length(hp, u);
+    double alpha = corner_angle(b, a, c);  // angle at p, opposite the side q-r
+    Complex dir = pos[q] - pos[p];
+    dir /= std::abs(dir);
+    pos[r] = pos[p] + c * dir * std::polar(1.0, alpha);
+    placed[r] = 1;
+  };
+  int h0 = T.face_halfedge(0);
+  pos[T.origin(h0)] = 0;
+  pos[T.origin(T.next(h0))] = T.length(h0, u);
+  placed[T.origin(h0)] = placed[T.origin(T.next(h0))] = 1;
+  third(h0);
+  std::queue<int> q;
+  q.push(0);
+  done[0] = 1;
+  while (!q.empty()) {
+    int f = q.front();
+    q.pop();
+    int h = T.face_halfedge(f);
+    for (int k = 0; k < 3; ++k, h = T.next(h)) {
+      int t = T.twin(h);
+      if (t < 0 || done[T.face(t)]) continue;
+      done[T.face(t)] = 1;
+      if (!placed[T.origin(T.next(T.next(t)))]) third(t);
+      q.push(T.face(t));
+    }
+  }
+  return pos;
+}
+
+// Least-squares circle through points (Kasa): x^2 + y^2 = 2 a x + 2 b y + c.
+std::pair<Complex, double> fit_circle(const std::vector<Complex>& p) {
+  Eigen::MatrixXd A(p.size(), 3);
+  Eigen::VectorXd rhs(p.size());
+  for (size_t i = 0; i < p.size(); ++i) {
+    A.row(i) << 2 * p[i].real(), 2 * p[i].imag(), 1.0;
+    rhs[i] = std::norm(p[i]);
+  }
+  Eigen::Vector3d s = A.colPivHouseholderQr().solve(rhs);
+  return {Complex(s[0], s[1]), std::sqrt(s[2] + s[0] * s[0] + s[1] * s[1])};
+}
+
+Eigen::VectorXd lambda_from_areas(const mesh::TriMesh& surface, const mesh::TriMesh& image) {
+  Eigen::VectorXd a = mesh::vertex_areas(surface), b = mesh::vertex_areas(image);
+  return (0.5 * (a.array() / b.array()).log()).matrix();
+}
+
+int highest_degree_vertex(const mesh::TriMesh& m) {
+  std::vector<int> deg(m.num_vertices(), 0);
+  for (int f = 0; f < m.num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) ++deg[m.F(f, k)];
+  return static_cast<int>(std::max_element(deg.begin(), deg.end()) - deg.begin());
+}
+
+}  // namespace
+
+ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
+  mesh::require_domain(mesh::compute_topology(m), mesh::Domain::kDisk);
+  const int nv = m.num_vertices();
+  std::vector<int> loop = mesh::boundary_loops(m).at(0);
+  const int first_boundary = loop.front();
+  IntrinsicTriangulation T(m);
+  const auto& on_boundary = T.boundary_vertex();
+  if (opt.center_vertex) {
+    int c = *opt.center_vertex;
+    if (c < 0 || c >= nv) invalid("center vertex " + std::to_string(c) + " is out of range");
+    if (on_boundary[c]) invalid("center vertex " + std::to_string(c) + " is on the boundary; it must be interior");
+  }
+  if (opt.boundary_vertex) {
+    int b = *opt.boundary_vertex;
+    if (b < 0 || b >= nv) invalid("boundary marker " + std::to_string(b) + " is out of range");
+    if (!on_boundary[b]) invalid("boundary marker " + std::to_string(b) + " is not on the boundary");
+  }
+
+  // Boundary half-edges keep their identity through flips (only interior edges flip).
+  std::vector<int> boundary_he(nv, -1);
+  for (int h = 0; h < T.num_halfedges(); ++h)
+    if (T.on_boundary(h)) boundary_he[T.origin(h)] = h;
+  for (int v : loop) BRENIER_CHECK(boundary_he[v] >= 0, "boundary vertex " << v << " has no boundary edge");
+  // A boundary edge facing a nearly flat angle (scanned meshes have 0.03 degree slivers)
+  // leaves the flow no room: the triangle cannot be flipped and the smallest change of u
+  // breaks its triangle inequality. Such edges are split intrinsically (extra boundary
+  // vertices that take part in the flow but not in the output), until every boundary edge
+  // faces an angle below 2 pi / 3.
+  {
+    std::vector<int> refined;
+    refined.reserve(loop.size());
+    std::vector<int> todo(loop.rbegin(), loop.rend());  // stack of vertices, loop order
+    while (!todo.empty()) {
+      int v = todo.back();
+      todo.pop_back();
+      refined.push_back(v);
+      int h = boundary_he[v], h1 = T.next(h), h2 = T.next(h1);
+      Eigen::VectorXd u0 = Eigen::VectorXd::Zero(T.num_vertices());
+      double opposite = corner_angle(T.length(h, u0), T.length(h1, u0), T.length(h2, u0));
+      if (opposite > 2 * std::numbers::pi / 3 && refined.size() < 4 * loop.size() + 64) {
+        int m = T.split_boundary_edge(h);
+        boundary_he.push_back(T.num_halfedges() - 2);  // the new m -> j half-edge
+        refined.pop_back();
+        todo.push_back(m);  // re-examine both halves: v's edge now ends at m
+        todo.push_back(v);
+      }
+    }
+    loop = std::move(refined);
+  }
+  const int nt = T.num_vertices();  // mesh vertices, then the boundary split points
+  T.make_delaunay_isometric();
+
+  std::vector<double> L(loop.size()), turning, tau;
+  TargetCurvature target = [&](const IntrinsicTriangulation& tri, const Eigen::VectorXd& u) {
+    Target t;
+    t.K = Eigen::VectorXd::Zero(nt);  // flat inside (Alg. 1 with Kbar = 0)
+    const size_t m = loop.size();
+    for (size_t i = 0; i < m; ++i) L[i] = tri.length(boundary_he[loop[i]], u);
+    inscribed_targets(L, turning, tau);
+    for (size_t i = 0; i < m; ++i) t.K[loop[i]] = turning[i];
+    if (!tau.empty()) {
+      t.w = Eigen::VectorXd::Zero(nt);
+      double sum = 0;
+      for (size_t j = 0; j < m; ++j) {
+        int a = loop[j], b = loop[(j + 1) % m];
+        double h = 0.5 * tau[j];
+        t.M.emplace_back(a, a, h);
+        t.M.emplace_back(b, b, h);
+        t.M.emplace_back(a, b, h);
+        t.M.emplace_back(b, a, h);
+        t.w[a] += tau[j];
+        t.w[b] += tau[j];
+        sum += tau[j];
+      }
+      t.c = 0.5 / sum;
+    }
+    return t;
+  };
+  YamabeOptions yo{opt.tolerance, opt.max_iterations, opt.progress};
+  int pinned = loop.front();
+  YamabeResult yr = solve_yamabe(T, target, Eigen::VectorXd::Zero(nt), pinned, yo);
+
+  ConformalMap out;
+  out.newton_iterations = yr.iterations;
+  out.max_curvature_error = yr.residual;
+  out.converged = yr.converged;
+  out.flips = yr.flips;
+
+  // Layout, then scale the boundary circle to the unit circle and put the boundary on it
+  // exactly (the residual moves it by at most about the curvature tolerance).
+  std::vector<Complex> pos = layout(T, yr.u);
+  std::vector<Complex> bpos;
+  for (int v : loop) bpos.push_back(pos[v]);
+  auto [centre, R] = fit_circle(bpos);
+  mesh::UV uv(nv, 2);
+  for (int v = 0; v < nv; ++v) {
+    Complex z = (pos[v] - centre) / R;
+    if (on_boundary[v]) z /= std::abs(z);
+    uv(v, 0) = z.real();
+    uv(v, 1) = z.imag();
+  }
+
+  // Moebius normalization (Thm 2.13).
+  if (opt.center_vertex) {
+    apply_disk_mobius(uv, Complex(uv(*opt.center_vertex, 0), uv(*opt.center_vertex, 1)), 0.0);
+    out.normalization = "center vertex " + std::to_string(*opt.center_vertex) + " at 0";
+  } else {
+    center_disk(uv, m.F, mesh::face_areas(m));
+    out.normalization = "area centre of mass at 0";
+  }
+  int b = opt.boundary_vertex ? *opt.boundary_vertex : first_boundary;
+  apply_disk_mobius(uv, 0.0, -std::atan2(uv(b, 1), uv(b, 0)));
+  out.normalization += ", boundary vertex " + std::to_string(b) + " at 1";
+  for (int v : loop) {  // keep the boundary exactly on the circle after the Moebius maps
+    if (v >= nv) continue;  // a split point, not a mesh vertex
+    double r = std::hypot(uv(v, 0), uv(v, 1));
+    uv.row(v) /= r;
+  }
+  out.positions = mesh::Vertices::Zero(nv, 3);
+  out.positions.leftCols(2) = uv;
+  mesh::TriMesh image{out.positions, m.F};
+  out.lambda = lambda_from_areas(m, image);
+  return out;
+}
+
+ConformalMap map_to_sphere(const mesh::TriMesh& m, const ConformalOptions& opt,
+                           std::optional<int> puncture) {
+  mesh::require_domain(mesh::compute_topology(m), mesh::Domain::kSphere);
+  const int nv = m.num_vertices();
+  if (opt.sphere_markers)
+    for (int v : *opt.sphere_markers)
+      if (v < 0 || v >= nv) invalid("sphere marker " + std::to_string(v) + " is out of range");
+  int p = puncture ? *puncture : highest_degree_vertex(m);
+  mesh::CutHole cut = mesh::cut_hole(m, p);
+
+  ConformalOptions disk_opt;
+  disk_opt.tolerance = opt.tolerance;
+  disk_opt.max_iterations = opt.max_iterations;
+  disk_opt.progress = opt.progress;
+  ConformalMap disk = map_to_disk(cut.mesh, disk_opt);
+
+  // The removed star becomes the cap |z| > rho around the north pole; rho gives the cap the
+  // star's share of the area (the Moebius centring below corrects the rest).
+  Eigen::VectorXd area = mesh::face_areas(m);
+  double star = 0;
+  for (int f = 0; f < m.num_faces(); ++f)
+    if (m.F(f, 0) == p || m.F(f, 1) == p || m.F(f, 2) == p) star += area[f];
+  double share = std::clamp(star / area.sum(), 1e-12, 0.5);
+  double h = 1 - 2 * share;
+  double rho = std::sqrt((1 + h) / (1 - h));
+
+  mesh::Vertices X(nv, 3);
+  X.row(p) = Eigen::RowVector3d(0, 0, 1);
+  for (int i = 0; i < cut.mesh.num_vertices(); ++i)
+    X.row(cut.vertex_origin[i]) =
+        inverse_stereographic(rho * Complex(disk.positions(i, 0), disk.positions(i, 1))).transpose();
+
+  ConformalMap out;
+  out.newton_iterations = disk.newton_iterations;
+  out.max_curvature_error = disk.max_curvature_error;
+  out.converged = disk.converged;
+  out.flips = disk.flips;
+  if (opt.sphere_markers) {
+    auto [a, b, c] = *opt.sphere_markers;
+    auto proj = [&](int v) { return stereographic(X.row(v).transpose()); };
+    auto at_pole = [&](int v) { return X(v, 2) > 1 - 1e-15; };
+    // w = (z - z1)(z2 - z3) / ((z - z3)(z2 - z1)) sends z1, z2, z3 to 0, 1, infinity.
+    if (at_pole(a) || at_pole(b) || at_pole(c)) {
+      center_sphere(X, m.F, area);  // moves the puncture off the pole
+    }
+    Complex z1 = proj(a), z2 = proj(b), z3 = proj(c);
+    if (std::abs(z1 - z2) < 1e-300 || std::abs(z2 - z3) < 1e-300 || std::abs(z1 - z3) < 1e-300)
+      invalid("sphere markers must be three different points");
+    for (int v = 0; v < nv; ++v) {
+      Complex w;
+      if (X(v, 2) > 1 - 1e-15) {
+        w = (z2 - z3) / (z2 - z1);
+      } else if (v == c) {
+        X.row(v) = Eigen::RowVector3d(0, 0, 1);
+        continue;
+      } else {
+        Complex z = proj(v);
+        w = (z - z1) * (z2 - z3) / ((z - z3) * (z2 - z1));
+      }
+      X.row(v) = inverse_stereographic(w).transpose();
+    }
+    out.normalization = "vertices " + std::to_string(a) + ", " + std::to_string(b) + ", " +
+                        std::to_string(c) + " at 0, 1, infinity";
+  } else {
+    center_sphere(X, m.F, area);
+    out.normalization = "area centre of mass at the origin";
+  }
+  out.positions = X;
+  mesh::TriMesh image{X, m.F};
+  out.lambda = lambda_from_areas(m, image);
+  return out;
+}
+
+}  // namespace brenier::conformal

@@ -1,0 +1,57 @@
+// Conformal maps of topological disks onto the unit disk and of closed genus-0 surfaces onto
+// the unit sphere (dissertation sec. 3.1, Alg. 1, Thm 2.13, sec. 3.2.5).
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <optional>
+#include <string>
+
+#include "conformal/yamabe.hpp"
+#include "mesh/mesh.hpp"
+
+namespace brenier::conformal {
+
+struct ConformalOptions {
+  double tolerance = 1e-9;  // max |K - Kbar| in radians
+  int max_iterations = 200;
+  /// Disk: interior vertex sent to 0 and boundary vertex sent to 1 (Thm 2.13). Without
+  /// them, the Moebius map that puts the pushed-forward area's centre of mass at 0, then the
+  /// rotation sending the first boundary vertex to 1.
+  std::optional<int> center_vertex;
+  std::optional<int> boundary_vertex;
+  /// Sphere: three vertices sent to 0, 1 and infinity of the stereographic plane (north
+  /// pole = infinity). Without them, the area centre of mass goes to the origin.
+  std::optional<std::array<int, 3>> sphere_markers;
+  Progress progress;
+};
+
+struct ConformalMap {
+  /// Disk: #V by 2 positions in the closed unit disk (rows of `positions` have z = 0).
+  /// Sphere: #V by 3 positions on the unit sphere.
+  mesh::Vertices positions;
+  /// Per-vertex conformal factor lambda: the surface metric is e^{2 lambda} |dz|^2 in the
+  /// domain's coordinates (disk: the plane; sphere: the sphere's own metric), estimated from
+  /// the vertex-scaling factors of the final discrete metric.
+  Eigen::VectorXd lambda;
+  int newton_iterations = 0;
+  double max_curvature_error = 0;  // max |K - Kbar| at the end
+  bool converged = false;
+  long flips = 0;  // intrinsic edge flips done
+  std::string normalization;  // how the Moebius freedom was fixed
+};
+
+/// Conformal map of a topological disk onto the unit disk. Boundary vertices land exactly
+/// on the unit circle. Throws kInvalidArgument when the mesh is not a disk or a marker is
+/// not valid; a solve that did not converge comes back with converged = false.
+ConformalMap map_to_disk(const mesh::TriMesh& mesh, const ConformalOptions& options = {});
+
+/// Conformal map of a closed genus-0 surface onto the unit sphere: the star of one vertex
+/// (`puncture`, by default the vertex of highest degree) is removed, the rest is mapped
+/// onto the disk with its boundary on a circle, the plane is sent onto the sphere by the
+/// inverse stereographic projection with the puncture at the north pole, and the result is
+/// Moebius-normalized.
+ConformalMap map_to_sphere(const mesh::TriMesh& mesh, const ConformalOptions& options = {},
+                           std::optional<int> puncture = std::nullopt);
+
+}  // namespace brenier::conformal

@@ -1,0 +1,75 @@
+#include "conformal/mobius.hpp"
+
+#include <cmath>
+
+#include "common/error.hpp"
+
+namespace brenier::conformal {
+
+Complex disk_automorphism(Complex z, Complex a) { return (z - a) / (1.0 - std::conj(a) * z); }
+
+void apply_disk_mobius(mesh::UV& uv, Complex a, double theta) {
+  const Complex rot = std::polar(1.0, theta);
+  for (int i = 0; i < uv.rows(); ++i) {
+    Complex w = rot * disk_automorphism(Complex(uv(i, 0), uv(i, 1)), a);
+    uv(i, 0) = w.real();
+    uv(i, 1) = w.imag();
+  }
+}
+
+int center_disk(mesh::UV& uv, const mesh::Faces& F, const Eigen::VectorXd& area, double tol,
+                int max_iterations) {
+  const double total = area.sum();
+  for (int it = 0; it < max_iterations; ++it) {
+    Complex c = 0;
+    for (int f = 0; f < F.rows(); ++f) {
+      Complex p = (Complex(uv(F(f, 0), 0), uv(F(f, 0), 1)) + Complex(uv(F(f, 1), 0), uv(F(f, 1), 1)) +
+                   Complex(uv(F(f, 2), 0), uv(F(f, 2), 1))) / 3.0;
+      c += area[f] * p;
+    }
+    c /= total;
+    if (std::abs(c) <= tol) return it;
+    // Moving a point a to 0 moves the centre of mass by about -a; for far-off-centre masses
+    // the step is damped so a stays well inside the disk.
+    double r = std::abs(c);
+    Complex a = r < 0.5 ? c : c * (0.5 / r);
+    apply_disk_mobius(uv, a, 0.0);
+  }
+  return max_iterations;
+}
+
+int center_sphere(mesh::Vertices& X, const mesh::Faces& F, const Eigen::VectorXd& area, double tol,
+                  int max_iterations) {
+  const double total = area.sum();
+  for (int it = 0; it < max_iterations; ++it) {
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (int f = 0; f < F.rows(); ++f) {
+      Eigen::Vector3d p = (X.row(F(f, 0)) + X.row(F(f, 1)) + X.row(F(f, 2))).transpose() / 3.0;
+      c += area[f] * p.normalized();
+    }
+    c /= total;
+    if (c.norm() <= tol) return it;
+    double r = c.norm();
+    Eigen::Vector3d a = r < 0.5 ? c : Eigen::Vector3d(c * (0.5 / r));
+    double a2 = a.squaredNorm();
+    for (int i = 0; i < X.rows(); ++i) {
+      Eigen::Vector3d x = X.row(i).transpose();
+      Eigen::Vector3d d = x - a;
+      Eigen::Vector3d y = (1 - a2) * d / d.squaredNorm() - a;
+      X.row(i) = y.normalized().transpose();
+    }
+  }
+  return max_iterations;
+}
+
+Complex stereographic(const Eigen::Vector3d& x) {
+  double d = 1.0 - x.z();
+  return Complex(x.x() / d, x.y() / d);
+}
+
+Eigen::Vector3d inverse_stereographic(Complex z) {
+  double r2 = std::norm(z);
+  return Eigen::Vector3d(2 * z.real(), 2 * z.imag(), r2 - 1) / (1 + r2);
+}
+
+}  // namespace brenier::conformal

@@ -1,0 +1,166 @@
+#include "conformal/yamabe.hpp"
+
+#include <Eigen/CholmodSupport>
+#include <Eigen/SparseCholesky>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <numbers>
+#include <vector>
+
+#include "common/check.hpp"
+#include "common/error.hpp"
+
+namespace brenier::conformal {
+
+Eigen::VectorXd curvature(const IntrinsicTriangulation& T, const Eigen::VectorXd& u) {
+  const int nv = T.num_vertices();
+  Eigen::VectorXd K(nv);
+  const auto& bnd = T.boundary_vertex();
+  for (int v = 0; v < nv; ++v) K[v] = bnd[v] ? std::numbers::pi : 2 * std::numbers::pi;
+  for (int f = 0; f < T.num_faces(); ++f) {
+    int h0 = T.face_halfedge(f), h1 = T.next(h0), h2 = T.next(h1);
+    double l0 = T.length(h0, u), l1 = T.length(h1, u), l2 = T.length(h2, u);
+    // The angle at origin(h) is opposite the edge of next(h).
+    K[T.origin(h0)] -= corner_angle(l1, l2, l0);
+    K[T.origin(h1)] -= corner_angle(l2, l0, l1);
+    K[T.origin(h2)] -= corner_angle(l0, l1, l2);
+  }
+  return K;
+}
+
+Eigen::SparseMatrix<double> curvature_jacobian(const IntrinsicTriangulation& T,
+                                               const Eigen::VectorXd& u) {
+  const int nv = T.num_vertices();
+  std::vector<Eigen::Triplet<double>> trip;
+  trip.reserve(static_cast<size_t>(T.num_halfedges()) * 4);
+  for (int f = 0; f < T.num_faces(); ++f) {
+    int h[3] = {T.face_halfedge(f), 0, 0};
+    h[1] = T.next(h[0]);
+    h[2] = T.next(h[1]);
+    double l[3] = {T.length(h[0], u), T.length(h[1], u), T.length(h[2], u)};
+    for (int k = 0; k < 3; ++k) {
+      // Edge of h[k] joins origin(h[k]) and origin(h[k+1]); its opposite corner's cot.
+      double w = 0.5 * corner_cot(l[k], l[(k + 1) % 3], l[(k + 2) % 3]);
+      int i = T.origin(h[k]), j = T.origin(h[(k + 1) % 3]);
+      trip.emplace_back(i, j, -w);
+      trip.emplace_back(j, i, -w);
+      trip.emplace_back(i, i, w);
+      trip.emplace_back(j, j, w);
+    }
+  }
+  Eigen::SparseMatrix<double> H(nv, nv);
+  H.setFromTriplets(trip.begin(), trip.end());
+  return H;
+}
+
+namespace {
+
+// Removes row and column `p` (the pinned vertex).
+Eigen::SparseMatrix<double> drop_pinned(const Eigen::SparseMatrix<double>& H, int p) {
+  const int n = static_cast<int>(H.rows());
+  std::vector<Eigen::Triplet<double>> trip;
+  trip.reserve(H.nonZeros());
+  for (int c = 0; c < H.outerSize(); ++c)
+    for (Eigen::SparseMatrix<double>::InnerIterator it(H, c); it; ++it) {
+      if (it.row() == p || it.col() == p) continue;
+      trip.emplace_back(it.row() - (it.row() > p), it.col() - (it.col() > p), it.value());
+    }
+  Eigen::SparseMatrix<double> R(n - 1, n - 1);
+  R.setFromTriplets(trip.begin(), trip.end());
+  return R;
+}
+
+}  // namespace
+
+YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& target,
+                          const Eigen::VectorXd& u0, int pinned, const YamabeOptions& opt) {
+  const int nv = T.num_vertices();
+  BRENIER_CHECK(u0.size() == nv, "u0 has " << u0.size() << " entries for " << nv << " vertices");
+  BRENIER_CHECK(pinned >= 0 && pinned < nv, "pinned vertex " << pinned << " out of range");
+  YamabeResult r;
+  r.u = u0;
+  if (T.make_delaunay(r.u) < 0)
+    fail(ErrorCode::kInvalidArgument,
+         "the starting metric cannot be made Delaunay (a degenerate triangle at the boundary)");
+  Target tg = target(T, r.u);
+  Eigen::VectorXd g = tg.K - curvature(T, r.u);
+  r.residual = g.cwiseAbs().maxCoeff();
+
+  // H - M is symmetric but may be indefinite (M lowers the boundary block), so it is factored
+  // LDL^T; CHOLMOD's own messages are silenced, failures are checked through info().
+  Eigen::CholmodSimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
+  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt;
+  ldlt.cholmod().print = 0;
+  llt.cholmod().print = 0;
+  for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
+    if (r.residual <= opt.tolerance) break;
+    // Newton step (eq. 3.4, Alg. 1 line 8, with the targets' own derivative):
+    // (H - M + c w w^T) du = Kbar - K, du_pinned = 0.
+    Eigen::SparseMatrix<double> Hfull = curvature_jacobian(T, r.u);
+    auto reduce = [&](const Eigen::VectorXd& x) {
+      Eigen::VectorXd y(nv - 1);
+      for (int i = 0, j = 0; i < nv; ++i)
+        if (i != pinned) y[j++] = x[i];
+      return y;
+    };
+    Eigen::VectorXd d;
+    bool exact = false;
+    if (!tg.M.empty()) {
+      Eigen::SparseMatrix<double> M(nv, nv);
+      M.setFromTriplets(tg.M.begin(), tg.M.end());
+      ldlt.compute(drop_pinned(Eigen::SparseMatrix<double>(Hfull - M), pinned));
+      if (ldlt.info() == Eigen::Success) {
+        d = ldlt.solve(reduce(g));
+        if (tg.c != 0) {  // Sherman-Morrison for + c w w^T
+          Eigen::VectorXd wr = reduce(tg.w), aw = ldlt.solve(wr);
+          d -= aw * (tg.c * wr.dot(d) / (1.0 + tg.c * wr.dot(aw)));
+        }
+        exact = d.allFinite();
+      }
+    }
+    if (!exact) {
+      llt.compute(drop_pinned(Hfull, pinned));
+      if (llt.info() != Eigen::Success)
+        fail(ErrorCode::kNotConverged, "the Yamabe Hessian could not be factored at iteration " +
+                                           std::to_string(r.iterations));
+      d = llt.solve(reduce(g));
+    }
+    Eigen::VectorXd du = Eigen::VectorXd::Zero(nv);
+    for (int i = 0, j = 0; i < nv; ++i)
+      if (i != pinned) du[i] = d[j++];
+    // Trust region: at most kMaxStep in any factor per iteration (a factor e^2 in length),
+    // so a wild first step on a tube-like mesh cannot ask for an absurd metric.
+    constexpr double kMaxStep = 4.0;
+    double t = std::min(1.0, kMaxStep / std::max(du.cwiseAbs().maxCoeff(), 1e-300));
+    bool accepted = false;
+    for (int halvings = 0; halvings < 40; ++halvings, t *= 0.5) {
+      Eigen::VectorXd trial = r.u + t * du;
+      int fl = T.make_delaunay(trial);
+      if (std::getenv("BRENIER_DEBUG")) std::fprintf(stderr, "t=%g flips=%d\n", t, fl);
+      if (fl < 0) continue;
+      Target tt = target(T, trial);
+      Eigen::VectorXd gt = tt.K - curvature(T, trial);
+      if (!gt.allFinite()) continue;
+      if (gt.squaredNorm() < (1.0 - 1e-4 * t) * g.squaredNorm() ||
+          gt.cwiseAbs().maxCoeff() <= opt.tolerance) {
+        r.u = std::move(trial);
+        g = std::move(gt);
+        tg = std::move(tt);
+        accepted = true;
+        break;
+      }
+    }
+    r.residual = g.cwiseAbs().maxCoeff();
+    if (opt.progress && !opt.progress(r.iterations + 1, r.residual))
+      fail(ErrorCode::kCancelled, "conformal map cancelled");
+    if (!accepted) break;  // no progress possible: report as not converged
+  }
+  // The last trial may have flipped T for a rejected u; restore Delaunay for the accepted one.
+  T.make_delaunay(r.u);
+  r.converged = r.residual <= opt.tolerance;
+  r.flips = T.total_flips();
+  return r;
+}
+
+}  // namespace brenier::conformal

@@ -1,0 +1,62 @@
+// Discrete surface Yamabe flow by Newton's method (dissertation Alg. 1, eq. 3.1-3.4) on an
+// intrinsic triangulation kept Delaunay by flips (Def. 3.5, the "surgery").
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/SparseCore>
+#include <functional>
+#include <vector>
+
+#include "conformal/intrinsic.hpp"
+
+namespace brenier::conformal {
+
+/// Called after every Newton iteration with (iteration, max |K - Kbar|); returning false
+/// cancels the solve (it then throws Error(kCancelled)).
+using Progress = std::function<bool(int iteration, double residual)>;
+
+/// Target curvature Kbar(u) for the current factors u, with its derivative when it depends
+/// on u (the disk's boundary targets follow the boundary lengths): dKbar/du = M - c w w^T
+/// for a sparse symmetric M (as triplets) and a rank-one term. Must satisfy Gauss-Bonnet.
+struct Target {
+  Eigen::VectorXd K;
+  std::vector<Eigen::Triplet<double>> M;
+  Eigen::VectorXd w;
+  double c = 0;
+};
+using TargetCurvature =
+    std::function<Target(const IntrinsicTriangulation&, const Eigen::VectorXd& u)>;
+
+struct YamabeOptions {
+  double tolerance = 1e-9;  // stop when max_i |K_i - Kbar_i| <= tolerance (radians)
+  int max_iterations = 200;
+  Progress progress;
+};
+
+struct YamabeResult {
+  Eigen::VectorXd u;  // #V conformal factors: lengths scale by exp((u_i + u_j) / 2)
+  int iterations = 0;
+  double residual = 0;  // max |K - Kbar| at u
+  bool converged = false;
+  long flips = 0;
+};
+
+/// Discrete Gaussian curvature (Def. 3.2): 2 pi - angle sum inside, pi - angle sum on the
+/// boundary. Precondition: every triangle of T satisfies the triangle inequality at u.
+Eigen::VectorXd curvature(const IntrinsicTriangulation& T, const Eigen::VectorXd& u);
+
+/// dK/du (eq. 3.3-3.4): the cotangent Laplacian of the current triangulation, H_ij =
+/// -(cot a_ij + cot b_ij)/2 for an edge ij, H_ii = -sum_j H_ij (boundary edges: one cot).
+/// Symmetric positive semi-definite with the constants as null space.
+Eigen::SparseMatrix<double> curvature_jacobian(const IntrinsicTriangulation& T,
+                                               const Eigen::VectorXd& u);
+
+/// Newton's method for K(u) = Kbar(u) starting from u0 (#V), flipping T to Delaunay at every
+/// step: (H - dKbar/du) du = Kbar - K, solved by Cholesky (CHOLMOD) with the vertex `pinned`
+/// fixed (the constants are the null space) and the rank-one part of dKbar/du by
+/// Sherman-Morrison; where H - M is not positive definite, H alone is used. Steps are halved
+/// until |Kbar - K| decreases and every triangle is valid.
+YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& target,
+                          const Eigen::VectorXd& u0, int pinned, const YamabeOptions& options);
+
+}  // namespace brenier::conformal

@@ -1,0 +1,43 @@
+// Quality of a map of a surface mesh onto a domain (shared by every map of the project):
+// flipped faces, angle distortion per corner, area distortion per face, quasi-conformal
+// ratio per face, and the Beltrami coefficient between two maps of the same mesh (5.4.2).
+#pragma once
+
+#include <Eigen/Core>
+#include <complex>
+#include <vector>
+
+#include "mesh/mesh.hpp"
+
+namespace brenier::quality {
+
+struct Stats {
+  double mean = 0, p95 = 0, max = 0;
+};
+
+enum class Target { kPlane, kSphere };
+
+struct MapQuality {
+  int flipped_faces = 0;
+  std::vector<int> flipped;            // their indices (at most 1000 listed)
+  Stats angle_distortion_deg;          // |angle in image - angle on surface| per corner
+  Stats area_distortion_log_abs;       // |log((A'/sum A') / (A/sum A))| per face
+  Stats quasi_conformal;               // sigma_max / sigma_min of each face's affine map
+  Eigen::VectorXd area_distortion_log; // #F signed log area ratios
+  Eigen::VectorXd qc_ratio;            // #F (infinity for flipped or degenerate faces)
+};
+
+/// Preconditions: `image` is #V by 3 (planar maps have z = 0), same vertex order as
+/// `surface`. For the plane, a face is flipped when its signed area is <= 0; for the
+/// sphere, when it faces inward (normal . centroid <= 0).
+MapQuality measure(const mesh::TriMesh& surface, const mesh::Vertices& image, Target target);
+
+/// Per-face Beltrami coefficient mu = f_zbar / f_z of the piecewise-affine map from map a's
+/// triangles to map b's (both #V by 3, planar or each face in its own tangent frame).
+/// |mu| < 1 on orientation-preserving faces; 0 where the two maps differ by a similarity.
+Eigen::VectorXcd beltrami(const mesh::Faces& F, const mesh::Vertices& a, const mesh::Vertices& b);
+
+/// mean, 95th percentile and max of the values.
+Stats stats(std::vector<double> values);
+
+}  // namespace brenier::quality

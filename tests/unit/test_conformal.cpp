@@ -1,0 +1,143 @@
+// Conformal maps: the Yamabe machinery (curvature, its Jacobian, flips) and maps with known
+// answers (hemisphere -> stereographic projection, planar disk -> identity, icosphere ->
+// itself, long cylinder).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <complex>
+#include <numbers>
+#include <random>
+
+#include "conformal/conformal_map.hpp"
+#include "conformal/intrinsic.hpp"
+#include "conformal/mobius.hpp"
+#include "conformal/yamabe.hpp"
+#include "mesh/geometry.hpp"
+#include "mesh/shapes.hpp"
+#include "mesh/topology.hpp"
+#include "quality/quality.hpp"
+
+using namespace brenier;
+using namespace brenier::conformal;
+using mesh::TriMesh;
+
+namespace {
+
+double max_radius_error_on_boundary(const TriMesh& m, const mesh::Vertices& pos) {
+  double e = 0;
+  const auto loops = mesh::boundary_loops(m);
+  for (int v : loops[0]) e = std::max(e, std::abs(pos.row(v).head<2>().norm() - 1.0));
+  return e;
+}
+
+}  // namespace
+
+TEST(Yamabe, GaussBonnetHoldsForCurvature) {
+  for (const TriMesh& m : {mesh::make_icosphere(2), mesh::make_hemisphere(5), mesh::make_torus(9, 7)}) {
+    IntrinsicTriangulation T(m);
+    Eigen::VectorXd u = Eigen::VectorXd::Zero(m.num_vertices());
+    double chi = mesh::compute_topology(m).euler;
+    EXPECT_NEAR(curvature(T, u).sum(), 2 * std::numbers::pi * chi, 1e-9);
+  }
+}
+
+TEST(Yamabe, JacobianMatchesFiniteDifferences) {
+  TriMesh m = mesh::make_hemisphere(4);
+  IntrinsicTriangulation T(m);
+  T.make_delaunay_isometric();
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> d(-0.1, 0.1);
+  Eigen::VectorXd u(m.num_vertices());
+  for (auto& x : u) x = d(rng);
+  ASSERT_GE(T.make_delaunay(u), 0);
+  Eigen::MatrixXd H = Eigen::MatrixXd(curvature_jacobian(T, u));
+  const double eps = 1e-6;
+  for (int j : {0, 5, 17, m.num_vertices() - 1}) {
+    Eigen::VectorXd up = u, um = u;
+    up[j] += eps;
+    um[j] -= eps;
+    Eigen::VectorXd fd = (curvature(T, up) - curvature(T, um)) / (2 * eps);
+    EXPECT_LT((fd - H.col(j)).cwiseAbs().maxCoeff(), 1e-6) << "column " << j;
+  }
+  // Constants are its null space.
+  EXPECT_LT((H * Eigen::VectorXd::Ones(u.size())).cwiseAbs().maxCoeff(), 1e-12);
+}
+
+TEST(Yamabe, IsometricFlipsKeepTheMetric) {
+  // A flat grid with a sheared row is not Delaunay; isometric flips must keep it flat.
+  TriMesh m = mesh::make_grid(6);
+  m.V.col(0) += 0.8 * m.V.col(1);
+  IntrinsicTriangulation T(m);
+  EXPECT_GT(T.make_delaunay_isometric(), 0);
+  Eigen::VectorXd K = curvature(T, Eigen::VectorXd::Zero(m.num_vertices()));
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if (!T.boundary_vertex()[v]) EXPECT_NEAR(K[v], 0.0, 1e-12) << v;
+}
+
+TEST(DiskMap, PlanarDiskMapsNearTheIdentity) {
+  TriMesh m = mesh::make_disk(8);
+  ConformalMap c = map_to_disk(m, {.center_vertex = 0, .boundary_vertex = mesh::boundary_loops(m)[0][0]});
+  ASSERT_TRUE(c.converged);
+  EXPECT_LT(max_radius_error_on_boundary(m, c.positions), 1e-14);
+  // The discrete map differs from the identity only by the polygonal boundary's effect.
+  double err = (c.positions.leftCols(2) - m.V.leftCols(2)).rowwise().norm().maxCoeff();
+  EXPECT_LT(err, 2e-2);
+  EXPECT_EQ(quality::measure(m, c.positions, quality::Target::kPlane).flipped_faces, 0);
+}
+
+TEST(DiskMap, HemisphereIsTheStereographicProjection) {
+  // The upper hemisphere's conformal map onto the disk with the pole at 0 is, up to a
+  // rotation, the stereographic projection from the south pole: (x, y) / (1 + z). For a mesh
+  // whose vertices lie on the sphere the discrete map is this projection *exactly* (up to
+  // the solver tolerance): vertex-scaling conformal equivalence is invariant under Moebius
+  // transformations of space, and the stereographic projection is one. So instead of an
+  // O(h^2) decay we can demand agreement to round-off at every resolution. (The O(h^2)
+  // decay of a true discretization error is tested on the half-disk below.)
+  for (int rings : {8, 16, 32}) {
+    TriMesh m = mesh::make_hemisphere(rings);
+    int b = mesh::boundary_loops(m)[0][0];
+    ConformalMap c = map_to_disk(m, {.center_vertex = 0, .boundary_vertex = b});
+    ASSERT_TRUE(c.converged) << c.max_curvature_error;
+    EXPECT_LE(c.max_curvature_error, 1e-9);
+    EXPECT_LT(max_radius_error_on_boundary(m, c.positions), 1e-14);
+    // Rotation: the boundary marker b goes to 1, and stereographic sends it to (x_b, y_b).
+    std::complex<double> rot = std::conj(std::complex<double>(m.V(b, 0), m.V(b, 1)));
+    double e = 0;
+    for (int v = 0; v < m.num_vertices(); ++v) {
+      std::complex<double> s(m.V(v, 0) / (1 + m.V(v, 2)), m.V(v, 1) / (1 + m.V(v, 2)));
+      e = std::max(e, std::abs(rot * s - std::complex<double>(c.positions(v, 0), c.positions(v, 1))));
+    }
+    EXPECT_LT(e, 1e-7) << rings << " rings";
+    EXPECT_EQ(quality::measure(m, c.positions, quality::Target::kPlane).flipped_faces, 0);
+  }
+}
+
+TEST(DiskMap, PolynomialDomainConvergesAsHSquared) {
+  // Omega = g(D) for g(w) = w + c w^2 (univalent for |c| < 1/2) has the conformal map
+  // g^{-1}: Omega -> D, with g(0) = 0 and g(1) = 1 + c. Meshing Omega as g(disk mesh), the
+  // discrete map with centre vertex 0 -> 0 and boundary vertex (1 + c) -> 1 must return the
+  // disk mesh's own vertex positions, with an error decaying like h^2 (a smooth domain, so
+  // no corner singularity pollutes the rate).
+  const double c = 0.3;
+  double errs[2];
+  int rings[2] = {10, 20};
+  for (int r = 0; r < 2; ++r) {
+    TriMesh disk = mesh::make_disk(rings[r]);
+    TriMesh m = disk;
+    for (int v = 0; v < m.num_vertices(); ++v) {
+      std::complex<double> w(disk.V(v, 0), disk.V(v, 1)), z = w + c * w * w;
+      m.V(v, 0) = z.real();
+      m.V(v, 1) = z.imag();
+    }
+    int b = -1;
+    for (int v = 0; v < m.num_vertices(); ++v)
+      if (std::abs(disk.V(v, 0) - 1.0) < 1e-12 && std::abs(disk.V(v, 1)) < 1e-12) b = v;
+    ASSERT_GE(b, 0);
+    ConformalMap cm = map_to_disk(m, {.center_vertex = 0, .boundary_vertex = b});
+    ASSERT_TRUE(cm.converged);
+    EXPECT_EQ(quality::measure(m, cm.positions, quality::Target::kPlane).flipped_faces, 0);
+    errs[r] = (cm.positions.leftCols(2) - disk.V.leftCols(2)).rowwise().norm().maxCoeff();
+  }
+  EXPECT_LT(errs[0], 0.05);
+  EXPECT_LT(errs[1], errs[0] / 3.0) << "expected O(h^2): " << errs[0] << " -> " << errs[1];
+}
