@@ -23,7 +23,7 @@ namespace {
 // (Gauss-Bonnet for the disk, chi = 1). A fixed point of "curvature = these targets" is a
 // flat metric whose boundary is exactly a cyclic polygon: its layout has every boundary
 // vertex on one circle.
-// Also returns tau_i = tan(a_i / 2) (empty in the fallback), which gives the targets'
+// Also returns tau_i = tan(a_i / 2), which gives the targets'
 // derivative: with s_i = du(b_i) + du(b_{i+1}), da_i = tau_i (s_i - sum_j tau_j s_j / sum_j tau_j),
 // so dKbar/du = (1/2) S^T diag(tau) S - (1/2) w w^T / sum(tau), w = S^T tau, where S is the
 // boundary-edge-by-vertex incidence (both endpoints 1).
@@ -42,22 +42,36 @@ void inscribed_targets(const std::vector<double>& L, std::vector<double>& turnin
     for (double l : L) s += 2 * std::asin(std::min(1.0, l / (2 * R)));
     return s;
   };
-  double lo = lmax / 2, hi = lsum;  // total(lo) >= pi, total(hi) <= 2 pi (chords <= arcs)
-  if (total(lo) < 2 * std::numbers::pi) {
-    // One edge longer than the whole rest can span on a circle around an interior centre
-    // (only in very early iterations): fall back to turning angles proportional to length.
+  // Usually the centre is inside the polygon and every a_i = 2 asin(L_i / 2R) <= pi. When
+  // the longest edge is longer than the rest can balance (total(lmax / 2) < 2 pi), the
+  // centre is outside and that edge subtends the major arc 2 pi - 2 asin(L / 2R); the
+  // turning-angle formula and the derivative below hold unchanged (tan(a/2) < 0 there).
+  size_t imax = static_cast<size_t>(std::max_element(L.begin(), L.end()) - L.begin());
+  const bool major = total(lmax / 2) < 2 * std::numbers::pi;
+  auto excess = [&](double R) {  // increasing in R in the major case
+    double s = 0;
     for (size_t i = 0; i < m; ++i)
-      turning[i] = std::numbers::pi * (L[(i + m - 1) % m] + L[i]) / lsum;
-    return;
+      if (i != imax) s += 2 * std::asin(std::min(1.0, L[i] / (2 * R)));
+    return s - 2 * std::asin(std::min(1.0, L[imax] / (2 * R)));
+  };
+  double lo = lmax / 2, hi = lsum;
+  if (major) {
+    hi = lmax;
+    for (int k = 0; k < 200 && excess(hi) < 0; ++k) hi *= 2;
   }
   for (int it = 0; it < 200 && hi - lo > 1e-15 * hi; ++it) {
     double mid = std::sqrt(lo * hi);
-    (total(mid) > 2 * std::numbers::pi ? lo : hi) = mid;
+    bool go_up = major ? excess(mid) < 0 : total(mid) > 2 * std::numbers::pi;
+    (go_up ? lo : hi) = mid;
   }
   double R = 0.5 * (lo + hi);
   std::vector<double> a(m);
   double sum = 0;
-  for (size_t i = 0; i < m; ++i) sum += a[i] = 2 * std::asin(std::min(1.0, L[i] / (2 * R)));
+  for (size_t i = 0; i < m; ++i) {
+    a[i] = 2 * std::asin(std::min(1.0, L[i] / (2 * R)));
+    if (major && i == imax) a[i] = 2 * std::numbers::pi - a[i];
+    sum += a[i];
+  }
   for (size_t i = 0; i < m; ++i) a[i] *= 2 * std::numbers::pi / sum;  // exact Gauss-Bonnet
   for (size_t i = 0; i < m; ++i) turning[i] = 0.5 * (a[(i + m - 1) % m] + a[i]);
   tau.resize(m);
@@ -156,37 +170,43 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
   // A boundary edge facing a nearly flat angle (scanned meshes have 0.03 degree slivers)
   // leaves the flow no room: the triangle cannot be flipped and the smallest change of u
   // breaks its triangle inequality. Such edges are split intrinsically (extra boundary
-  // vertices that take part in the flow but not in the output), until every boundary edge
-  // faces an angle below 2 pi / 3.
-  {
+  // vertices that take part in the flow but not in the output) until every boundary edge
+  // faces an angle below 2 pi / 3 -- before the flow, and again whenever the flow gets stuck
+  // against such a triangle.
+  Eigen::VectorXd u = Eigen::VectorXd::Zero(nv);
+  auto refine_boundary = [&](double threshold) {
     std::vector<int> refined;
     refined.reserve(loop.size());
     std::vector<int> todo(loop.rbegin(), loop.rend());  // stack of vertices, loop order
+    int splits = 0;
     while (!todo.empty()) {
       int v = todo.back();
       todo.pop_back();
       refined.push_back(v);
       int h = boundary_he[v], h1 = T.next(h), h2 = T.next(h1);
-      Eigen::VectorXd u0 = Eigen::VectorXd::Zero(T.num_vertices());
-      double opposite = corner_angle(T.length(h, u0), T.length(h1, u0), T.length(h2, u0));
-      if (opposite > 2 * std::numbers::pi / 3 && refined.size() < 4 * loop.size() + 64) {
-        int m = T.split_boundary_edge(h);
-        boundary_he.push_back(T.num_halfedges() - 2);  // the new m -> j half-edge
+      double opposite = corner_angle(T.length(h, u), T.length(h1, u), T.length(h2, u));
+      if (opposite > threshold && splits < 2 * nv + 64) {
+        int mid = T.split_boundary_edge(h, u);
+        ++splits;
+        boundary_he.push_back(T.num_halfedges() - 2);  // the new mid -> j half-edge
         refined.pop_back();
-        todo.push_back(m);  // re-examine both halves: v's edge now ends at m
+        todo.push_back(mid);  // re-examine both halves: v's edge now ends at mid
         todo.push_back(v);
       }
     }
     loop = std::move(refined);
-  }
-  const int nt = T.num_vertices();  // mesh vertices, then the boundary split points
+    return splits;
+  };
+  refine_boundary(2 * std::numbers::pi / 3);
   T.make_delaunay_isometric();
 
   std::vector<double> L(loop.size()), turning, tau;
   TargetCurvature target = [&](const IntrinsicTriangulation& tri, const Eigen::VectorXd& u) {
     Target t;
+    const int nt = tri.num_vertices();  // mesh vertices, then the boundary split points
     t.K = Eigen::VectorXd::Zero(nt);  // flat inside (Alg. 1 with Kbar = 0)
     const size_t m = loop.size();
+    L.resize(m);
     for (size_t i = 0; i < m; ++i) L[i] = tri.length(boundary_he[loop[i]], u);
     inscribed_targets(L, turning, tau);
     for (size_t i = 0; i < m; ++i) t.K[loop[i]] = turning[i];
@@ -210,7 +230,18 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
   };
   YamabeOptions yo{opt.tolerance, opt.max_iterations, opt.progress};
   int pinned = loop.front();
-  YamabeResult yr = solve_yamabe(T, target, Eigen::VectorXd::Zero(nt), pinned, yo);
+  YamabeResult yr = solve_yamabe(T, target, u, pinned, yo);
+  int total_iterations = yr.iterations;
+  for (int round = 0; round < 20 && !yr.converged && total_iterations < opt.max_iterations; ++round) {
+    u = yr.u;
+    yo.max_iterations = opt.max_iterations - total_iterations;
+    if (!yr.blocked) break;  // stuck for another reason: report it
+    if (refine_boundary(2 * std::numbers::pi / 3) == 0 && refine_boundary(std::numbers::pi / 2) == 0)
+      yo.stop_when_blocked = false;  // nothing left to split: take the small steps
+    yr = solve_yamabe(T, target, u, pinned, yo);
+    total_iterations += yr.iterations;
+  }
+  yr.iterations = total_iterations;
 
   ConformalMap out;
   out.newton_iterations = yr.iterations;

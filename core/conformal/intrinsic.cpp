@@ -107,6 +107,7 @@ bool IntrinsicTriangulation::is_delaunay(int h, const Eigen::VectorXd& u) const 
   // Relative to the cotangents themselves: slivers have cotangents of 1e4 whose sum carries
   // a round-off far above any absolute threshold, and would flip back and forth.
   double sum = cot_a + cot_b;
+  if (std::isnan(sum)) return true;          // undefined: leave it, the caller rejects u
   if (!std::isfinite(sum)) return sum > 0;  // an angle of pi (cot = -inf) must flip
   return sum >= -1e-10 * std::max({1.0, std::abs(cot_a), std::abs(cot_b)});
 }
@@ -134,12 +135,17 @@ void IntrinsicTriangulation::flip(int h, double new_eta) {
   ++total_flips_;
 }
 
-int IntrinsicTriangulation::split_boundary_edge(int h) {
+int IntrinsicTriangulation::split_boundary_edge(int h, Eigen::VectorXd& u) {
   BRENIER_CHECK(he_twin_[h] < 0, "half-edge " << h << " is not on the boundary");
+  BRENIER_CHECK(u.size() == nv_, "u has " << u.size() << " entries for " << nv_ << " vertices");
   const int h0 = h, h1 = he_next_[h0], h2 = he_next_[h1];
-  const int j = he_origin_[h1], k = he_origin_[h2];
-  const double c = eta_[he_edge_[h0]], a = eta_[he_edge_[h1]], b = eta_[he_edge_[h2]];
+  const int i = he_origin_[h0], j = he_origin_[h1], k = he_origin_[h2];
+  const double c = length(h0, u), a = length(h1, u), b = length(h2, u);
   const int m = nv_++;
+  u.conservativeResize(nv_);
+  u[m] = 0.5 * (u[i] + u[j]);
+  // Base length of an edge (p, q) whose current length is l: l * exp(-(u_p + u_q) / 2).
+  auto base = [&](double l, int p, int q) { return l * std::exp(-0.5 * (u[p] + u[q])); };
   boundary_vertex_.push_back(1);
   const int f2 = num_faces();
   const int n0 = num_halfedges(), n1 = n0 + 1, n2 = n0 + 2;
@@ -168,14 +174,13 @@ int IntrinsicTriangulation::split_boundary_edge(int h) {
   face_he_[f1] = h0;
   he_twin_[n0] = n2;
   he_twin_[n2] = n0;
-  eta_[he_edge_[h0]] = 0.5 * c;
+  eta_[he_edge_[h0]] = base(0.5 * c, i, m);
   he_edge_[n1] = static_cast<int>(eta_.size());
-  eta_.push_back(0.5 * c);
+  eta_.push_back(base(0.5 * c, m, j));
   edge_he_.push_back(n1);
   he_edge_[n0] = he_edge_[n2] = static_cast<int>(eta_.size());
-  eta_.push_back(0.5 * std::sqrt(std::max(0.0, 2 * a * a + 2 * b * b - c * c)));
+  eta_.push_back(base(0.5 * std::sqrt(std::max(0.0, 2 * a * a + 2 * b * b - c * c)), m, k));
   edge_he_.push_back(n0);
-  (void)j;
   return m;
 }
 

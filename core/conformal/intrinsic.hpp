@@ -53,12 +53,13 @@ class IntrinsicTriangulation {
   /// Isometric intrinsic Delaunay flips of the input metric (u = 0), done once at the start.
   int make_delaunay_isometric();
 
-  /// Splits the boundary edge of half-edge h (i -> j, twin -1) at its midpoint, before any
-  /// flow (u = 0): a new boundary vertex m with base lengths l/2, l/2 and, to the opposite
-  /// corner k, the median length sqrt(2a^2 + 2b^2 - c^2) / 2 (Stewart's theorem). The metric
-  /// is unchanged. Returns m. Used where a boundary edge faces a nearly flat angle: no flip
-  /// can ever repair a boundary triangle, so it gets room to change shape instead.
-  int split_boundary_edge(int h);
+  /// Splits the boundary edge of half-edge h (i -> j, twin -1) at its midpoint in the
+  /// metric of u: a new boundary vertex m with factor u_m = (u_i + u_j) / 2, current lengths
+  /// l/2, l/2 and, to the opposite corner k, the median sqrt(2a^2 + 2b^2 - c^2) / 2
+  /// (Stewart's theorem), stored as base lengths. The metric is unchanged. u is extended by
+  /// u_m; returns m. Used where a boundary edge faces a nearly flat angle: no flip can ever
+  /// repair a boundary triangle, so it gets room to change shape instead.
+  int split_boundary_edge(int h, Eigen::VectorXd& u);
 
   /// Total number of flips done so far.
   long total_flips() const { return total_flips_; }

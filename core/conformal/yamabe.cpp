@@ -133,12 +133,17 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
     // so a wild first step on a tube-like mesh cannot ask for an absurd metric.
     constexpr double kMaxStep = 4.0;
     double t = std::min(1.0, kMaxStep / std::max(du.cwiseAbs().maxCoeff(), 1e-300));
-    bool accepted = false;
+    bool accepted = false, blocked = false;
+    const IntrinsicTriangulation before = T;  // each trial flips from the accepted state
     for (int halvings = 0; halvings < 40; ++halvings, t *= 0.5) {
+      if (halvings > 0) T = before;
       Eigen::VectorXd trial = r.u + t * du;
       int fl = T.make_delaunay(trial);
       if (std::getenv("BRENIER_DEBUG")) std::fprintf(stderr, "t=%g flips=%d\n", t, fl);
-      if (fl < 0) continue;
+      if (fl < 0) {
+        blocked = blocked || fl == -1;
+        continue;
+      }
       Target tt = target(T, trial);
       Eigen::VectorXd gt = tt.K - curvature(T, trial);
       if (!gt.allFinite()) continue;
@@ -154,10 +159,21 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
     r.residual = g.cwiseAbs().maxCoeff();
     if (opt.progress && !opt.progress(r.iterations + 1, r.residual))
       fail(ErrorCode::kCancelled, "conformal map cancelled");
-    if (!accepted) break;  // no progress possible: report as not converged
+    if (!accepted) {  // no progress possible: report as not converged
+      T = before;
+      r.blocked = blocked;
+      break;
+    }
+    // A boundary triangle that cannot change shape any further throttles every step; stop
+    // and let the caller give it room (see split_boundary_edge) rather than crawl.
+    if (opt.stop_when_blocked && blocked && t < 1.0 / 64) {
+      r.blocked = true;
+      break;
+    }
   }
   // The last trial may have flipped T for a rejected u; restore Delaunay for the accepted one.
-  T.make_delaunay(r.u);
+  if (T.make_delaunay(r.u) < 0)
+    fail(ErrorCode::kInternal, "the accepted metric lost its Delaunay triangulation");
   r.converged = r.residual <= opt.tolerance;
   r.flips = T.total_flips();
   return r;

@@ -31,6 +31,9 @@ struct YamabeOptions {
   double tolerance = 1e-9;  // stop when max_i |K_i - Kbar_i| <= tolerance (radians)
   int max_iterations = 200;
   Progress progress;
+  /// Return (blocked = true) as soon as a boundary triangle throttles the steps, so that
+  /// the caller can refine the boundary; otherwise crawl on.
+  bool stop_when_blocked = true;
 };
 
 struct YamabeResult {
@@ -38,6 +41,7 @@ struct YamabeResult {
   int iterations = 0;
   double residual = 0;  // max |K - Kbar| at u
   bool converged = false;
+  bool blocked = false;  // stopped by a boundary triangle that would become degenerate
   long flips = 0;
 };
 

@@ -23,6 +23,13 @@ using mesh::TriMesh;
 
 namespace {
 
+ConformalOptions markers(int centre, int boundary) {
+  ConformalOptions o;
+  o.center_vertex = centre;
+  o.boundary_vertex = boundary;
+  return o;
+}
+
 double max_radius_error_on_boundary(const TriMesh& m, const mesh::Vertices& pos) {
   double e = 0;
   const auto loops = mesh::boundary_loops(m);
@@ -71,12 +78,14 @@ TEST(Yamabe, IsometricFlipsKeepTheMetric) {
   EXPECT_GT(T.make_delaunay_isometric(), 0);
   Eigen::VectorXd K = curvature(T, Eigen::VectorXd::Zero(m.num_vertices()));
   for (int v = 0; v < m.num_vertices(); ++v)
-    if (!T.boundary_vertex()[v]) EXPECT_NEAR(K[v], 0.0, 1e-12) << v;
+    if (!T.boundary_vertex()[v]) {
+      EXPECT_NEAR(K[v], 0.0, 1e-12) << v;
+    }
 }
 
 TEST(DiskMap, PlanarDiskMapsNearTheIdentity) {
   TriMesh m = mesh::make_disk(8);
-  ConformalMap c = map_to_disk(m, {.center_vertex = 0, .boundary_vertex = mesh::boundary_loops(m)[0][0]});
+  ConformalMap c = map_to_disk(m, markers(0, mesh::boundary_loops(m)[0][0]));
   ASSERT_TRUE(c.converged);
   EXPECT_LT(max_radius_error_on_boundary(m, c.positions), 1e-14);
   // The discrete map differs from the identity only by the polygonal boundary's effect.
@@ -96,7 +105,7 @@ TEST(DiskMap, HemisphereIsTheStereographicProjection) {
   for (int rings : {8, 16, 32}) {
     TriMesh m = mesh::make_hemisphere(rings);
     int b = mesh::boundary_loops(m)[0][0];
-    ConformalMap c = map_to_disk(m, {.center_vertex = 0, .boundary_vertex = b});
+    ConformalMap c = map_to_disk(m, markers(0, b));
     ASSERT_TRUE(c.converged) << c.max_curvature_error;
     EXPECT_LE(c.max_curvature_error, 1e-9);
     EXPECT_LT(max_radius_error_on_boundary(m, c.positions), 1e-14);
@@ -133,7 +142,7 @@ TEST(DiskMap, PolynomialDomainConvergesAsHSquared) {
     for (int v = 0; v < m.num_vertices(); ++v)
       if (std::abs(disk.V(v, 0) - 1.0) < 1e-12 && std::abs(disk.V(v, 1)) < 1e-12) b = v;
     ASSERT_GE(b, 0);
-    ConformalMap cm = map_to_disk(m, {.center_vertex = 0, .boundary_vertex = b});
+    ConformalMap cm = map_to_disk(m, markers(0, b));
     ASSERT_TRUE(cm.converged);
     EXPECT_EQ(quality::measure(m, cm.positions, quality::Target::kPlane).flipped_faces, 0);
     errs[r] = (cm.positions.leftCols(2) - disk.V.leftCols(2)).rowwise().norm().maxCoeff();
