@@ -316,7 +316,10 @@ ConformalMap map_to_sphere(const mesh::TriMesh& m, const ConformalOptions& opt,
   X.row(p) = Eigen::RowVector3d(0, 0, 1);
   for (int i = 0; i < cut.mesh.num_vertices(); ++i)
     X.row(cut.vertex_origin[i]) =
-        inverse_stereographic(rho * Complex(disk.positions(i, 0), disk.positions(i, 1))).transpose();
+        // conj: the stereographic projection from the north pole reverses orientation, so a
+        // counter-clockwise disk lands outward-facing on the sphere only after a reflection.
+        inverse_stereographic(rho * std::conj(Complex(disk.positions(i, 0), disk.positions(i, 1))))
+            .transpose();
 
   ConformalMap out;
   out.newton_iterations = disk.newton_iterations;

@@ -13,7 +13,7 @@
 namespace brenier::conformal {
 
 struct ConformalOptions {
-  double tolerance = 1e-9;  // max |K - Kbar| in radians
+  double tolerance = 1e-8;  // max |K - Kbar| in radians
   int max_iterations = 200;
   /// Disk: interior vertex sent to 0 and boundary vertex sent to 1 (Thm 2.13). Without
   /// them, the Moebius map that puts the pushed-forward area's centre of mass at 0, then the

@@ -28,7 +28,7 @@ using TargetCurvature =
     std::function<Target(const IntrinsicTriangulation&, const Eigen::VectorXd& u)>;
 
 struct YamabeOptions {
-  double tolerance = 1e-9;  // stop when max_i |K_i - Kbar_i| <= tolerance (radians)
+  double tolerance = 1e-8;  // stop when max_i |K_i - Kbar_i| <= tolerance (radians)
   int max_iterations = 200;
   Progress progress;
   /// Return (blocked = true) as soon as a boundary triangle throttles the steps, so that
