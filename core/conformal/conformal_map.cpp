@@ -1,6 +1,9 @@
 #include "conformal/conformal_map.hpp"
 
 #include <Eigen/Dense>
+#include <Eigen/SparseLU>
+#include <map>
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <queue>
@@ -11,6 +14,7 @@
 #include "conformal/mobius.hpp"
 #include "mesh/geometry.hpp"
 #include "mesh/topology.hpp"
+#include "quality/quality.hpp"
 
 namespace brenier::conformal {
 namespace {
@@ -140,6 +144,159 @@ int highest_degree_vertex(const mesh::TriMesh& m) {
   for (int f = 0; f < m.num_faces(); ++f)
     for (int k = 0; k < 3; ++k) ++deg[m.F(f, k)];
   return static_cast<int>(std::max_element(deg.begin(), deg.end()) - deg.begin());
+}
+
+bool face_folded(const mesh::TriMesh& m, const mesh::Vertices& X, int f, bool sphere) {
+  Eigen::Vector3d a = X.row(m.F(f, 0)), b = X.row(m.F(f, 1)), c = X.row(m.F(f, 2));
+  Eigen::Vector3d n = (b - a).cross(c - a);
+  return sphere ? !(n.dot(a + b + c) > 0) : !(n.z() > 0);
+}
+
+}  // namespace
+
+int untangle(const mesh::TriMesh& m, mesh::Vertices& X, bool sphere, const std::vector<char>& fixed,
+             int& folded, int max_rounds) {
+  const int nv = m.num_vertices();
+  std::vector<std::vector<int>> ring(nv), star(nv);
+  for (int f = 0; f < m.num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) {
+      ring[m.F(f, k)].push_back(m.F(f, (k + 1) % 3));
+      star[m.F(f, k)].push_back(f);
+    }
+  auto folded_around = [&](int v) {
+    int n = 0;
+    for (int f : star[v]) n += face_folded(m, X, f, sphere);
+    return n;
+  };
+  std::vector<char> moved(nv, 0);
+  int count = 0;
+  // Candidate positions for a vertex v of folded face f: its mirror image across the line
+  // (plane) of the other two corners, which unfolds f exactly, or the average of its
+  // neighbours (a Tutte step). The first that lowers the folds around v is kept, else one
+  // that does not raise them.
+  auto mirror = [&](int v, int f) {
+    int k = m.F(f, 0) == v ? 0 : m.F(f, 1) == v ? 1 : 2;
+    Eigen::RowVector3d p = X.row(v), a = X.row(m.F(f, (k + 1) % 3)), b = X.row(m.F(f, (k + 2) % 3));
+    if (sphere) {
+      Eigen::RowVector3d n = a.cross(b).normalized();
+      return Eigen::RowVector3d(p - 2 * p.dot(n) * n);
+    }
+    Eigen::RowVector3d d = (b - a).normalized();
+    Eigen::RowVector3d foot = a + (p - a).dot(d) * d;
+    return Eigen::RowVector3d(2 * foot - p);
+  };
+  auto average = [&](int v) {
+    Eigen::RowVector3d avg = Eigen::RowVector3d::Zero();
+    for (int w : ring[v]) avg += X.row(w);
+    avg /= static_cast<double>(ring[v].size());
+    return sphere ? Eigen::RowVector3d(avg.normalized()) : avg;
+  };
+  for (int round = 0; round <= max_rounds; ++round) {
+    std::vector<std::pair<int, int>> todo;  // (vertex, its folded face)
+    folded = 0;
+    for (int f = 0; f < m.num_faces(); ++f)
+      if (face_folded(m, X, f, sphere)) {
+        ++folded;
+        for (int k = 0; k < 3; ++k)
+          if (!fixed[m.F(f, k)]) todo.push_back({m.F(f, k), f});
+      }
+    if (folded == 0 || todo.empty() || round == max_rounds) break;
+    bool any = false;
+    for (auto [v, f] : todo) {
+      if (!face_folded(m, X, f, sphere)) continue;  // fixed meanwhile
+      const Eigen::RowVector3d old = X.row(v);
+      const int before = folded_around(v);
+      Eigen::RowVector3d best = old;
+      int best_n = before;
+      for (const Eigen::RowVector3d& cand : {mirror(v, f), average(v)}) {
+        if (!cand.allFinite()) continue;
+        X.row(v) = cand;
+        int n = folded_around(v);
+        // Strict improvements always; sideways moves on odd rounds, to get out of a knot.
+        if (n < best_n || (n == best_n && best == old && (round & 1))) {
+          best = cand;
+          best_n = n;
+        }
+      }
+      X.row(v) = best;
+      if (best != old) {
+        any = true;
+        if (!moved[v]) {
+          moved[v] = 1;
+          ++count;
+        }
+      }
+    }
+    if (!any && !(round & 1)) continue;  // try a round of sideways moves first
+    if (!any) break;
+  }
+  return count;
+}
+
+namespace {
+
+// Disk maps: a Tutte embedding that reproduces the conformal map wherever it is already
+// unfolded (Floater's mean value coordinates of each interior vertex with respect to its
+// mapped one-ring are positive there and have linear precision), with the 3-D surface's own
+// mean value coordinates where they are not. All weights positive and the boundary on a
+// convex polygon (inscribed in the circle): by Tutte's and Floater's theorems the result has
+// no folded face. Returns the number of vertices whose weights were replaced.
+int tutte_repair(const mesh::TriMesh& m, mesh::Vertices& X, const std::vector<char>& boundary) {
+  const int nv = m.num_vertices();
+  // Ordered one-rings from the oriented faces: next[v][w] = the vertex after w around v.
+  std::vector<std::vector<std::pair<int, int>>> fan(nv);
+  for (int f = 0; f < m.num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) fan[m.F(f, k)].push_back({m.F(f, (k + 1) % 3), m.F(f, (k + 2) % 3)});
+  auto mvc = [&](int v, const auto& pos, bool planar, std::vector<std::pair<int, double>>& w) {
+    // Each fan triangle (v, a, b) adds tan(alpha/2) / |a - v| to a and to b, alpha = angle
+    // a-v-b (signed in the plane: a folded or reflex ring gives some weight <= 0).
+    w.clear();
+    std::map<int, double> acc;
+    double total_angle = 0;
+    for (auto [a, b] : fan[v]) {
+      Eigen::Vector3d pv = pos.row(v).transpose(), pa = pos.row(a).transpose(), pb = pos.row(b).transpose();
+      Eigen::Vector3d da = pa - pv, db = pb - pv;
+      double alpha = planar ? std::atan2(da.x() * db.y() - da.y() * db.x(), da.dot(db))
+                            : std::atan2(da.cross(db).norm(), da.dot(db));
+      total_angle += alpha;
+      double t = std::tan(alpha / 2);
+      acc[a] += t / da.norm();
+      acc[b] += t / db.norm();
+    }
+    for (auto [k, x] : acc) w.push_back({k, x});
+    return total_angle;
+  };
+  std::vector<Eigen::Triplet<double>> trip;
+  Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(nv, 2);
+  std::vector<std::pair<int, double>> w;
+  int replaced = 0;
+  for (int v = 0; v < nv; ++v) {
+    if (boundary[v]) {
+      trip.emplace_back(v, v, 1.0);
+      rhs.row(v) = X.row(v).head<2>();
+      continue;
+    }
+    double total = mvc(v, X, true, w);
+    bool good = std::abs(total - 2 * std::numbers::pi) < 1e-9;
+    for (auto [k, x] : w) good = good && x > 0 && std::isfinite(x);
+    if (!good) {
+      mvc(v, m.V, false, w);  // the surface's own angles: always positive
+      ++replaced;
+    }
+    double sum = 0;
+    for (auto [k, x] : w) sum += x;
+    trip.emplace_back(v, v, 1.0);
+    for (auto [k, x] : w) trip.emplace_back(v, k, -x / sum);
+  }
+  Eigen::SparseMatrix<double> A(nv, nv);
+  A.setFromTriplets(trip.begin(), trip.end());
+  Eigen::SparseLU<Eigen::SparseMatrix<double>> lu;
+  lu.compute(A);
+  if (lu.info() != Eigen::Success) return -1;
+  Eigen::MatrixXd sol = lu.solve(rhs);
+  if (!sol.allFinite()) return -1;
+  X.leftCols(2) = sol;
+  return replaced;
 }
 
 }  // namespace
@@ -281,6 +438,19 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
   }
   out.positions = mesh::Vertices::Zero(nv, 3);
   out.positions.leftCols(2) = uv;
+  std::vector<char> fixed(nv);
+  for (int v = 0; v < nv; ++v) fixed[v] = on_boundary[v];
+  quality::MapQuality before = quality::measure(m, out.positions, quality::Target::kPlane);
+  if (before.flipped_faces > 0) {
+    mesh::Vertices repaired = out.positions;
+    int replaced = tutte_repair(m, repaired, fixed);
+    if (replaced >= 0 && quality::measure(m, repaired, quality::Target::kPlane).flipped_faces <
+                             before.flipped_faces) {
+      out.positions = repaired;
+      out.relaxed_vertices = replaced;
+    }
+  }
+  out.folded_faces = quality::measure(m, out.positions, quality::Target::kPlane).flipped_faces;
   mesh::TriMesh image{out.positions, m.F};
   out.lambda = lambda_from_areas(m, image);
   return out;
@@ -356,6 +526,10 @@ ConformalMap map_to_sphere(const mesh::TriMesh& m, const ConformalOptions& opt,
     center_sphere(X, m.F, area);
     out.normalization = "area centre of mass at the origin";
   }
+  std::vector<char> fixed(nv, 0);
+  if (opt.sphere_markers)
+    for (int v : *opt.sphere_markers) fixed[v] = 1;
+  out.relaxed_vertices = untangle(m, X, true, fixed, out.folded_faces);
   out.positions = X;
   mesh::TriMesh image{X, m.F};
   out.lambda = lambda_from_areas(m, image);

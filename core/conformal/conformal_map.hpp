@@ -6,6 +6,7 @@
 #include <array>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "conformal/yamabe.hpp"
 #include "mesh/mesh.hpp"
@@ -39,7 +40,21 @@ struct ConformalMap {
   bool converged = false;
   long flips = 0;  // intrinsic edge flips done
   std::string normalization;  // how the Moebius freedom was fixed
+  /// Vertices moved by untangle() after the conformal solve (0 when every input face came
+  /// out unfolded by itself), and the faces still folded after it.
+  int relaxed_vertices = 0;
+  int folded_faces = 0;
 };
+
+/// Repairs input faces that the intrinsic map folds: the intrinsic triangulation the flow
+/// runs on differs from the input's (Delaunay flips, boundary splits), and an input face
+/// whose corner angle is nearly pi, or whose far corner lies between a boundary chord and
+/// the circle, can come out inverted although the map of the intrinsic triangulation is
+/// not. Each non-fixed vertex of a folded face is moved to the average of its neighbours
+/// (one Tutte step; on the sphere, then back onto it), repeated until nothing is folded or
+/// `max_rounds` passes. Returns the number of vertices moved; `folded` gets the count left.
+int untangle(const mesh::TriMesh& mesh, mesh::Vertices& positions, bool sphere,
+             const std::vector<char>& fixed, int& folded, int max_rounds = 100);
 
 /// Conformal map of a topological disk onto the unit disk. Boundary vertices land exactly
 /// on the unit circle. Throws kInvalidArgument when the mesh is not a disk or a marker is

@@ -122,6 +122,7 @@ int run_map(const MapOptions& o) {
                     {"converged", map.converged},
                     {"intrinsic_flips", map.flips},
                     {"normalization", map.normalization},
+                    {"relaxed_vertices", map.relaxed_vertices},
                     {"lambda_min", map.lambda.minCoeff()},
                     {"lambda_max", map.lambda.maxCoeff()}};
   j["quality"] = {{"flipped_faces", q.flipped_faces},
