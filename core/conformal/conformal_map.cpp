@@ -95,7 +95,15 @@ std::vector<Complex> layout(const IntrinsicTriangulation& T, const Eigen::Vector
     double a = T.length(h, u), b = T.length(hn, u), c = T.length(hp, u);
     double alpha = corner_angle(b, a, c);  // angle at p, opposite the side q-r
     Complex dir = pos[q] - pos[p];
-    dir /= std::abs(dir);
+    double n = std::abs(dir);
+    if (!(n > 0) || !std::isfinite(n))
+      fail(ErrorCode::kNotConverged,
+           "the conformal map squeezes part of the surface below double precision (length "
+           "scales span a factor of " +
+               std::to_string(std::exp(0.5 * (u.maxCoeff() - u.minCoeff()))) +
+               "), so it cannot be written as coordinates; a hole or puncture nearer to the "
+               "long protrusions helps (--hole-vertex)");
+    dir /= n;
     pos[r] = pos[p] + c * dir * std::polar(1.0, alpha);
     placed[r] = 1;
   };
@@ -139,12 +147,6 @@ Eigen::VectorXd lambda_from_areas(const mesh::TriMesh& surface, const mesh::TriM
   return (0.5 * (a.array() / b.array()).log()).matrix();
 }
 
-int highest_degree_vertex(const mesh::TriMesh& m) {
-  std::vector<int> deg(m.num_vertices(), 0);
-  for (int f = 0; f < m.num_faces(); ++f)
-    for (int k = 0; k < 3; ++k) ++deg[m.F(f, k)];
-  return static_cast<int>(std::max_element(deg.begin(), deg.end()) - deg.begin());
-}
 
 bool face_folded(const mesh::TriMesh& m, const mesh::Vertices& X, int f, bool sphere) {
   Eigen::Vector3d a = X.row(m.F(f, 0)), b = X.row(m.F(f, 1)), c = X.row(m.F(f, 2));
@@ -386,8 +388,13 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
     return t;
   };
   YamabeOptions yo{opt.tolerance, opt.max_iterations, opt.progress};
-  int pinned = loop.front();
-  YamabeResult yr = solve_yamabe(T, target, u, pinned, yo);
+  const int pinned = loop.front();
+  auto pin = [&]() {
+    std::vector<char> fixed(T.num_vertices(), 0);
+    fixed[pinned] = 1;
+    return fixed;
+  };
+  YamabeResult yr = solve_yamabe(T, target, u, pin(), yo);
   int total_iterations = yr.iterations;
   for (int round = 0; round < 20 && !yr.converged && total_iterations < opt.max_iterations; ++round) {
     u = yr.u;
@@ -395,7 +402,7 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
     if (!yr.blocked) break;  // stuck for another reason: report it
     if (refine_boundary(2 * std::numbers::pi / 3) == 0 && refine_boundary(std::numbers::pi / 2) == 0)
       yo.stop_when_blocked = false;  // nothing left to split: take the small steps
-    yr = solve_yamabe(T, target, u, pinned, yo);
+    yr = solve_yamabe(T, target, u, pin(), yo);
     total_iterations += yr.iterations;
   }
   yr.iterations = total_iterations;
@@ -409,9 +416,13 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
   // Layout, then scale the boundary circle to the unit circle and put the boundary on it
   // exactly (the residual moves it by at most about the curvature tolerance).
   std::vector<Complex> pos = layout(T, yr.u);
+  for (int v = 0; v < static_cast<int>(pos.size()); ++v)
+    BRENIER_CHECK(std::isfinite(pos[v].real()) && std::isfinite(pos[v].imag()),
+                  "layout placed vertex " << v << " at a non-finite point");
   std::vector<Complex> bpos;
   for (int v : loop) bpos.push_back(pos[v]);
   auto [centre, R] = fit_circle(bpos);
+  BRENIER_CHECK(std::isfinite(R) && R > 0, "boundary circle fit failed (radius " << R << ")");
   mesh::UV uv(nv, 2);
   for (int v = 0; v < nv; ++v) {
     Complex z = (pos[v] - centre) / R;
@@ -428,6 +439,7 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
     center_disk(uv, m.F, mesh::face_areas(m));
     out.normalization = "area centre of mass at 0";
   }
+  BRENIER_CHECK(uv.allFinite(), "Moebius normalization produced non-finite positions");
   int b = opt.boundary_vertex ? *opt.boundary_vertex : first_boundary;
   apply_disk_mobius(uv, 0.0, -std::atan2(uv(b, 1), uv(b, 0)));
   out.normalization += ", boundary vertex " + std::to_string(b) + " at 1";
@@ -456,6 +468,52 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
   return out;
 }
 
+namespace {
+
+// Positions of the punctured surface in the plane, puncture at infinity (sec. 3.2.5 through
+// vertex scaling). Sending the puncture p to infinity (u_p -> infinity) keeps the triangles
+// around it valid only if e^{u_i / 2} l_pi is the same for every neighbour i of p; in the
+// limit they become half-strips and impose exactly this Dirichlet condition on the link:
+//     u_i = -2 log l_pi + const,
+// while every other vertex is flat (Kbar = 0). The result is the stereographic projection
+// (from p) of the conformal map onto the sphere; for a mesh inscribed in a sphere it is the
+// stereographic projection of the mesh itself (Moebius invariance of vertex scaling).
+// Returns false when the flow is blocked by a degenerate link triangle.
+bool punctured_plane(const mesh::TriMesh& m, int p, const mesh::CutHole& cut,
+                     const ConformalOptions& opt, std::vector<Complex>& z, YamabeResult& yr) {
+  const mesh::TriMesh& c = cut.mesh;
+  const int nc = c.num_vertices();
+  std::vector<char> fixed(nc, 0);
+  Eigen::VectorXd u = Eigen::VectorXd::Zero(nc);
+  std::vector<int> link = mesh::boundary_loops(c).at(0);
+  double mean_log = 0;
+  for (int i : link) mean_log += std::log((m.V.row(p) - m.V.row(cut.vertex_origin[i])).norm());
+  mean_log /= static_cast<double>(link.size());
+  for (int i : link) {
+    fixed[i] = 1;
+    u[i] = -2.0 * (std::log((m.V.row(p) - m.V.row(cut.vertex_origin[i])).norm()) - mean_log);
+  }
+  IntrinsicTriangulation T(c);
+  T.make_delaunay_isometric();
+  TargetCurvature flat = [](const IntrinsicTriangulation& tri, const Eigen::VectorXd&) {
+    Target t;
+    t.K = Eigen::VectorXd::Zero(tri.num_vertices());
+    return t;
+  };
+  YamabeOptions yo{opt.tolerance, opt.max_iterations, opt.progress};
+  try {
+    yr = solve_yamabe(T, flat, u, fixed, yo);
+  } catch (const Error& e) {
+    if (e.code() == ErrorCode::kCancelled) throw;
+    return false;
+  }
+  if (!yr.converged) return false;  // blocked by a link triangle: the caller falls back
+  z = layout(T, yr.u);
+  return true;
+}
+
+}  // namespace
+
 ConformalMap map_to_sphere(const mesh::TriMesh& m, const ConformalOptions& opt,
                            std::optional<int> puncture) {
   mesh::require_domain(mesh::compute_topology(m), mesh::Domain::kSphere);
@@ -463,17 +521,11 @@ ConformalMap map_to_sphere(const mesh::TriMesh& m, const ConformalOptions& opt,
   if (opt.sphere_markers)
     for (int v : *opt.sphere_markers)
       if (v < 0 || v >= nv) invalid("sphere marker " + std::to_string(v) + " is out of range");
-  int p = puncture ? *puncture : highest_degree_vertex(m);
+  int p = puncture ? *puncture : mesh::default_hole_vertex(m);
   mesh::CutHole cut = mesh::cut_hole(m, p);
 
-  ConformalOptions disk_opt;
-  disk_opt.tolerance = opt.tolerance;
-  disk_opt.max_iterations = opt.max_iterations;
-  disk_opt.progress = opt.progress;
-  ConformalMap disk = map_to_disk(cut.mesh, disk_opt);
-
-  // The removed star becomes the cap |z| > rho around the north pole; rho gives the cap the
-  // star's share of the area (the Moebius centring below corrects the rest).
+  // The removed star becomes the cap around the north pole; rho gives the cap the star's
+  // share of the area (the Moebius centring below corrects the rest).
   Eigen::VectorXd area = mesh::face_areas(m);
   double star = 0;
   for (int f = 0; f < m.num_faces(); ++f)
@@ -482,20 +534,46 @@ ConformalMap map_to_sphere(const mesh::TriMesh& m, const ConformalOptions& opt,
   double h = 1 - 2 * share;
   double rho = std::sqrt((1 + h) / (1 - h));
 
+  ConformalMap out;
+  std::vector<Complex> z;
+  YamabeResult yr;
+  if (punctured_plane(m, p, cut, opt, z, yr)) {
+    z.resize(cut.mesh.num_vertices());
+    std::vector<int> link = mesh::boundary_loops(cut.mesh).at(0);
+    Complex centre = 0;
+    for (int i : link) centre += z[i];
+    centre /= static_cast<double>(link.size());
+    double radius = 0;
+    for (int i : link) radius += std::abs(z[i] - centre);
+    radius /= static_cast<double>(link.size());
+    for (auto& w : z) w = (w - centre) * (rho / radius);
+    out.newton_iterations = yr.iterations;
+    out.max_curvature_error = yr.residual;
+    out.converged = yr.converged;
+    out.flips = yr.flips;
+  } else {
+    // Fallback: map the punctured surface onto the disk with its link on a circle (an
+    // O(h) approximation near the puncture) and scale the disk to the cap's rim.
+    ConformalOptions disk_opt;
+    disk_opt.tolerance = opt.tolerance;
+    disk_opt.max_iterations = opt.max_iterations;
+    disk_opt.progress = opt.progress;
+    ConformalMap disk = map_to_disk(cut.mesh, disk_opt);
+    z.resize(cut.mesh.num_vertices());
+    for (int i = 0; i < cut.mesh.num_vertices(); ++i)
+      z[i] = rho * Complex(disk.positions(i, 0), disk.positions(i, 1));
+    out.newton_iterations = disk.newton_iterations;
+    out.max_curvature_error = disk.max_curvature_error;
+    out.converged = disk.converged;
+    out.flips = disk.flips;
+  }
+
   mesh::Vertices X(nv, 3);
   X.row(p) = Eigen::RowVector3d(0, 0, 1);
   for (int i = 0; i < cut.mesh.num_vertices(); ++i)
-    X.row(cut.vertex_origin[i]) =
-        // conj: the stereographic projection from the north pole reverses orientation, so a
-        // counter-clockwise disk lands outward-facing on the sphere only after a reflection.
-        inverse_stereographic(rho * std::conj(Complex(disk.positions(i, 0), disk.positions(i, 1))))
-            .transpose();
-
-  ConformalMap out;
-  out.newton_iterations = disk.newton_iterations;
-  out.max_curvature_error = disk.max_curvature_error;
-  out.converged = disk.converged;
-  out.flips = disk.flips;
+    // conj: the stereographic projection from the north pole reverses orientation, so a
+    // counter-clockwise plane lands outward-facing on the sphere only after a reflection.
+    X.row(cut.vertex_origin[i]) = inverse_stereographic(std::conj(z[i])).transpose();
   if (opt.sphere_markers) {
     auto [a, b, c] = *opt.sphere_markers;
     auto proj = [&](int v) { return stereographic(X.row(v).transpose()); };

@@ -14,7 +14,7 @@
 namespace brenier::conformal {
 
 struct ConformalOptions {
-  double tolerance = 1e-8;  // max |K - Kbar| in radians
+  double tolerance = 1e-7;  // max |K - Kbar| in radians
   int max_iterations = 200;
   /// Disk: interior vertex sent to 0 and boundary vertex sent to 1 (Thm 2.13). Without
   /// them, the Moebius map that puts the pushed-forward area's centre of mass at 0, then the
@@ -62,7 +62,7 @@ int untangle(const mesh::TriMesh& mesh, mesh::Vertices& positions, bool sphere,
 ConformalMap map_to_disk(const mesh::TriMesh& mesh, const ConformalOptions& options = {});
 
 /// Conformal map of a closed genus-0 surface onto the unit sphere: the star of one vertex
-/// (`puncture`, by default the vertex of highest degree) is removed, the rest is mapped
+/// (`puncture`, by default mesh::default_hole_vertex) is removed, the rest is mapped
 /// onto the disk with its boundary on a circle, the plane is sent onto the sphere by the
 /// inverse stereographic projection with the puncture at the north pole, and the result is
 /// Moebius-normalized.

@@ -40,14 +40,15 @@ int center_disk(mesh::UV& uv, const mesh::Faces& F, const Eigen::VectorXd& area,
 
 int center_sphere(mesh::Vertices& X, const mesh::Faces& F, const Eigen::VectorXd& area, double tol,
                   int max_iterations) {
-  const double total = area.sum();
+  // Vertex masses (a third of the adjacent faces' areas) at the vertices: unlike chord
+  // centroids of faces, these can balance even for a coarse mesh (a tetrahedron's faces'
+  // chord centroids can all lie in one hemisphere).
+  Eigen::VectorXd mass = Eigen::VectorXd::Zero(X.rows());
+  for (int f = 0; f < F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) mass[F(f, k)] += area[f] / 3.0;
+  const double total = mass.sum();
   for (int it = 0; it < max_iterations; ++it) {
-    Eigen::Vector3d c = Eigen::Vector3d::Zero();
-    for (int f = 0; f < F.rows(); ++f) {
-      Eigen::Vector3d p = (X.row(F(f, 0)) + X.row(F(f, 1)) + X.row(F(f, 2))).transpose() / 3.0;
-      c += area[f] * p.normalized();
-    }
-    c /= total;
+    Eigen::Vector3d c = (X.transpose() * mass) / total;
     if (c.norm() <= tol) return it;
     double r = c.norm();
     Eigen::Vector3d a = r < 0.5 ? c : Eigen::Vector3d(c * (0.5 / r));

@@ -24,7 +24,8 @@ void apply_disk_mobius(mesh::UV& uv, Complex a, double theta);
 int center_disk(mesh::UV& uv, const mesh::Faces& F, const Eigen::VectorXd& face_area,
                 double tol = 1e-12, int max_iterations = 200);
 
-/// The same for points on the unit sphere (#V by 3), with the ball automorphism
+/// The same for points on the unit sphere (#V by 3), with the mass of each vertex (a third
+/// of its faces' areas) at the vertex, and the ball automorphism
 /// x -> (1 - |a|^2)(x - a) / |x - a|^2 - a, which maps the sphere to itself and a to 0.
 int center_sphere(mesh::Vertices& X, const mesh::Faces& F, const Eigen::VectorXd& face_area,
                   double tol = 1e-12, int max_iterations = 200);

@@ -56,17 +56,17 @@ Eigen::SparseMatrix<double> curvature_jacobian(const IntrinsicTriangulation& T,
 
 namespace {
 
-// Removes row and column `p` (the pinned vertex).
-Eigen::SparseMatrix<double> drop_pinned(const Eigen::SparseMatrix<double>& H, int p) {
-  const int n = static_cast<int>(H.rows());
+// Keeps the rows and columns of the free vertices (index[i] >= 0), renumbered.
+Eigen::SparseMatrix<double> restrict_free(const Eigen::SparseMatrix<double>& H,
+                                          const std::vector<int>& index, int nfree) {
   std::vector<Eigen::Triplet<double>> trip;
   trip.reserve(H.nonZeros());
   for (int c = 0; c < H.outerSize(); ++c)
     for (Eigen::SparseMatrix<double>::InnerIterator it(H, c); it; ++it) {
-      if (it.row() == p || it.col() == p) continue;
-      trip.emplace_back(it.row() - (it.row() > p), it.col() - (it.col() > p), it.value());
+      int r = index[it.row()], k = index[it.col()];
+      if (r >= 0 && k >= 0) trip.emplace_back(r, k, it.value());
     }
-  Eigen::SparseMatrix<double> R(n - 1, n - 1);
+  Eigen::SparseMatrix<double> R(nfree, nfree);
   R.setFromTriplets(trip.begin(), trip.end());
   return R;
 }
@@ -74,17 +74,30 @@ Eigen::SparseMatrix<double> drop_pinned(const Eigen::SparseMatrix<double>& H, in
 }  // namespace
 
 YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& target,
-                          const Eigen::VectorXd& u0, int pinned, const YamabeOptions& opt) {
+                          const Eigen::VectorXd& u0, const std::vector<char>& fixed,
+                          const YamabeOptions& opt) {
   const int nv = T.num_vertices();
   BRENIER_CHECK(u0.size() == nv, "u0 has " << u0.size() << " entries for " << nv << " vertices");
-  BRENIER_CHECK(pinned >= 0 && pinned < nv, "pinned vertex " << pinned << " out of range");
+  BRENIER_CHECK(static_cast<int>(fixed.size()) == nv, "fixed mask has " << fixed.size() << " entries");
+  std::vector<int> index(nv, -1);
+  int nfree = 0;
+  for (int i = 0; i < nv; ++i)
+    if (!fixed[i]) index[i] = nfree++;
+  BRENIER_CHECK(nfree < nv, "at least one vertex must be fixed (the constants are H's null space)");
+  // Only free vertices have a curvature equation; fixed ones keep their factor.
+  auto residual = [&](const Target& tg, const Eigen::VectorXd& u) {
+    Eigen::VectorXd g = tg.K - curvature(T, u);
+    for (int i = 0; i < nv; ++i)
+      if (fixed[i]) g[i] = 0;
+    return g;
+  };
   YamabeResult r;
   r.u = u0;
   if (T.make_delaunay(r.u) < 0)
     fail(ErrorCode::kInvalidArgument,
          "the starting metric cannot be made Delaunay (a degenerate triangle at the boundary)");
   Target tg = target(T, r.u);
-  Eigen::VectorXd g = tg.K - curvature(T, r.u);
+  Eigen::VectorXd g = residual(tg, r.u);
   r.residual = g.cwiseAbs().maxCoeff();
 
   // H - M is symmetric but may be indefinite (M lowers the boundary block), so it is factored
@@ -97,12 +110,12 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
   for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
     if (r.residual <= opt.tolerance) break;
     // Newton step (eq. 3.4, Alg. 1 line 8, with the targets' own derivative):
-    // (H - M + c w w^T) du = Kbar - K, du_pinned = 0.
+    // (H - M + c w w^T) du = Kbar - K on the free vertices, du = 0 on the fixed ones.
     Eigen::SparseMatrix<double> Hfull = curvature_jacobian(T, r.u);
     auto reduce = [&](const Eigen::VectorXd& x) {
-      Eigen::VectorXd y(nv - 1);
-      for (int i = 0, j = 0; i < nv; ++i)
-        if (i != pinned) y[j++] = x[i];
+      Eigen::VectorXd y(nfree);
+      for (int i = 0; i < nv; ++i)
+        if (index[i] >= 0) y[index[i]] = x[i];
       return y;
     };
     Eigen::VectorXd d;
@@ -110,7 +123,7 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
     if (!tg.M.empty()) {
       Eigen::SparseMatrix<double> M(nv, nv);
       M.setFromTriplets(tg.M.begin(), tg.M.end());
-      ldlt.compute(drop_pinned(Eigen::SparseMatrix<double>(Hfull - M), pinned));
+      ldlt.compute(restrict_free(Eigen::SparseMatrix<double>(Hfull - M), index, nfree));
       if (ldlt.info() == Eigen::Success) {
         d = ldlt.solve(reduce(g));
         if (tg.c != 0) {  // Sherman-Morrison for + c w w^T
@@ -121,15 +134,15 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
       }
     }
     if (!exact) {
-      llt.compute(drop_pinned(Hfull, pinned));
+      llt.compute(restrict_free(Hfull, index, nfree));
       if (llt.info() != Eigen::Success)
         fail(ErrorCode::kNotConverged, "the Yamabe Hessian could not be factored at iteration " +
                                            std::to_string(r.iterations));
       d = llt.solve(reduce(g));
     }
     Eigen::VectorXd du = Eigen::VectorXd::Zero(nv);
-    for (int i = 0, j = 0; i < nv; ++i)
-      if (i != pinned) du[i] = d[j++];
+    for (int i = 0; i < nv; ++i)
+      if (index[i] >= 0) du[i] = d[index[i]];
     // Trust region: at most kMaxStep in any factor per iteration (a factor e^2 in length),
     // so a wild first step on a tube-like mesh cannot ask for an absurd metric.
     constexpr double kMaxStep = 4.0;
@@ -146,7 +159,7 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
         continue;
       }
       Target tt = target(T, trial);
-      Eigen::VectorXd gt = tt.K - curvature(T, trial);
+      Eigen::VectorXd gt = residual(tt, trial);
       if (!gt.allFinite()) continue;
       if (gt.squaredNorm() < (1.0 - 1e-4 * t) * g.squaredNorm() ||
           gt.cwiseAbs().maxCoeff() <= opt.tolerance) {

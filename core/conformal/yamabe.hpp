@@ -28,7 +28,7 @@ using TargetCurvature =
     std::function<Target(const IntrinsicTriangulation&, const Eigen::VectorXd& u)>;
 
 struct YamabeOptions {
-  double tolerance = 1e-8;  // stop when max_i |K_i - Kbar_i| <= tolerance (radians)
+  double tolerance = 1e-7;  // stop when max_i |K_i - Kbar_i| <= tolerance (radians)
   int max_iterations = 200;
   Progress progress;
   /// Return (blocked = true) as soon as a boundary triangle throttles the steps, so that
@@ -56,11 +56,13 @@ Eigen::SparseMatrix<double> curvature_jacobian(const IntrinsicTriangulation& T,
                                                const Eigen::VectorXd& u);
 
 /// Newton's method for K(u) = Kbar(u) starting from u0 (#V), flipping T to Delaunay at every
-/// step: (H - dKbar/du) du = Kbar - K, solved by Cholesky (CHOLMOD) with the vertex `pinned`
-/// fixed (the constants are the null space) and the rank-one part of dKbar/du by
+/// step: (H - dKbar/du) du = Kbar - K on the free vertices, solved by sparse Cholesky
+/// (CHOLMOD) with the `fixed` vertices (#V mask; at least one, since the constants are H's
+/// null space) keeping their u0 (Dirichlet), and the rank-one part of dKbar/du by
 /// Sherman-Morrison; where H - M is not positive definite, H alone is used. Steps are halved
 /// until |Kbar - K| decreases and every triangle is valid.
 YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& target,
-                          const Eigen::VectorXd& u0, int pinned, const YamabeOptions& options);
+                          const Eigen::VectorXd& u0, const std::vector<char>& fixed,
+                          const YamabeOptions& options);
 
 }  // namespace brenier::conformal

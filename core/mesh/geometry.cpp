@@ -2,7 +2,11 @@
 
 #include <Eigen/Eigenvalues>
 #include <cmath>
+#include <limits>
+#include <queue>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "common/error.hpp"
 #include "mesh/topology.hpp"
@@ -51,22 +55,64 @@ Normalization normalize(TriMesh& m, double target_area) {
   return n;
 }
 
+namespace {
+// Dijkstra over mesh edges (Euclidean lengths) from `src`; returns distances and parents.
+std::pair<std::vector<double>, std::vector<int>> dijkstra(const TriMesh& m, int src) {
+  const int nv = m.num_vertices();
+  std::vector<std::vector<std::pair<int, double>>> adj(nv);
+  for (int f = 0; f < m.num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) {
+      int a = m.F(f, k), b = m.F(f, (k + 1) % 3);
+      double l = (m.V.row(a) - m.V.row(b)).norm();
+      adj[a].push_back({b, l});
+      adj[b].push_back({a, l});
+    }
+  std::vector<double> d(nv, std::numeric_limits<double>::infinity());
+  std::vector<int> parent(nv, -1);
+  std::priority_queue<std::pair<double, int>, std::vector<std::pair<double, int>>, std::greater<>> q;
+  d[src] = 0;
+  q.push({0, src});
+  while (!q.empty()) {
+    auto [dv, v] = q.top();
+    q.pop();
+    if (dv > d[v]) continue;
+    for (auto [w, l] : adj[v])
+      if (dv + l < d[w]) {
+        d[w] = dv + l;
+        parent[w] = v;
+        q.push({d[w], w});
+      }
+  }
+  return {std::move(d), std::move(parent)};
+}
+}  // namespace
+
 int default_hole_vertex(const TriMesh& m) {
-  Eigen::Vector3d c = area_centroid(m);
-  Eigen::MatrixXd X = m.V.rowwise() - c.transpose();
-  Eigen::Matrix3d cov = X.transpose() * X;
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
-  Eigen::Vector3d axis = es.eigenvectors().col(2);  // largest spread
-  int best = 0;
-  double best_d = -1;
-  for (int i = 0; i < X.rows(); ++i) {
-    double d = std::abs(X.row(i).dot(axis));
-    if (d > best_d) {
-      best_d = d;
-      best = i;
+  // Double sweep: a = farthest from vertex 0, b = farthest from a (a near-diameter pair);
+  // the vertex minimizing max(d(a, v), d(b, v)) is close to the surface's centre, so
+  // every protrusion is as near to the hole as it can be. A conformal map squeezes a
+  // protrusion exponentially in its distance from the hole (e^{-2 pi length / girth}), so
+  // this keeps long limbs representable in double precision.
+  auto far = [](const std::vector<double>& d) {
+    int best = 0;
+    for (int i = 1; i < static_cast<int>(d.size()); ++i)
+      if (std::isfinite(d[i]) && d[i] > d[best]) best = i;
+    return best;
+  };
+  int a = far(dijkstra(m, 0).first);
+  auto da = dijkstra(m, a).first;
+  int b = far(da);
+  auto db = dijkstra(m, b).first;
+  int v = 0;
+  double best = std::numeric_limits<double>::infinity();
+  for (int i = 0; i < m.num_vertices(); ++i) {
+    double e = std::max(da[i], db[i]);  // the vertex the two ends of the diameter share best
+    if (e < best) {
+      best = e;
+      v = i;
     }
   }
-  return best;
+  return v;
 }
 
 CutHole cut_hole(const TriMesh& m, std::optional<int> v) {

@@ -34,8 +34,9 @@ struct CutHole {
   std::vector<int> face_origin;    // #F of the cut mesh: its input face
 };
 
-/// The vertex the default rule picks: farthest from the area centroid along the axis of the
-/// largest spread (for a brain or a head, a pole), ties to the lowest index.
+/// The vertex the default rule picks: for a near-diametral pair (a, b) found by a double
+/// Dijkstra sweep along mesh edges, the vertex minimizing max(d(a, v), d(b, v)); it lies
+/// close to the surface's centre, so that no protrusion is far from the hole.
 int default_hole_vertex(const TriMesh& mesh);
 
 /// Opens a closed genus-0 surface into a topological disk by deleting the vertex `v` (or the

@@ -99,8 +99,8 @@ void add_inspect(CLI::App& app, Action& action) {
   cmd->add_flag("--cut-hole", o->cut,
                 "open a closed genus-0 mesh into a disk by removing one vertex's star");
   cmd->add_option("--hole-vertex", o->hole_vertex,
-                  "vertex whose star --cut-hole removes (default: the vertex farthest from the "
-                  "area centroid along the axis of largest spread)");
+                  "vertex whose star --cut-hole removes (default: a vertex near the surface's "
+                  "centre along the edges, so that no protrusion is far from the hole)");
   cmd->callback([o, &action] { action = [o] { return run_inspect(*o); }; });
 }
 

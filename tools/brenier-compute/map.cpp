@@ -25,7 +25,7 @@ struct MapOptions {
   std::string output;
   bool json = false;
   bool allow_flips = false;
-  double tolerance = 1e-8;
+  double tolerance = 1e-7;
   int max_iterations = 200;
 };
 
