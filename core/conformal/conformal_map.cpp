@@ -514,14 +514,10 @@ bool punctured_plane(const mesh::TriMesh& m, int p, const mesh::CutHole& cut,
 
 }  // namespace
 
-ConformalMap map_to_sphere(const mesh::TriMesh& m, const ConformalOptions& opt,
-                           std::optional<int> puncture) {
-  mesh::require_domain(mesh::compute_topology(m), mesh::Domain::kSphere);
+namespace {
+
+ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions& opt, int p) {
   const int nv = m.num_vertices();
-  if (opt.sphere_markers)
-    for (int v : *opt.sphere_markers)
-      if (v < 0 || v >= nv) invalid("sphere marker " + std::to_string(v) + " is out of range");
-  int p = puncture ? *puncture : mesh::default_hole_vertex(m);
   mesh::CutHole cut = mesh::cut_hole(m, p);
 
   // The removed star becomes the cap around the north pole; rho gives the cap the star's
@@ -612,6 +608,43 @@ ConformalMap map_to_sphere(const mesh::TriMesh& m, const ConformalOptions& opt,
   mesh::TriMesh image{X, m.F};
   out.lambda = lambda_from_areas(m, image);
   return out;
+}
+
+}  // namespace
+
+ConformalMap map_to_sphere(const mesh::TriMesh& m, const ConformalOptions& opt,
+                           std::optional<int> puncture) {
+  mesh::require_domain(mesh::compute_topology(m), mesh::Domain::kSphere);
+  const int nv = m.num_vertices();
+  if (opt.sphere_markers)
+    for (int v : *opt.sphere_markers)
+      if (v < 0 || v >= nv) invalid("sphere marker " + std::to_string(v) + " is out of range");
+  if (puncture) {
+    if (*puncture < 0 || *puncture >= nv) invalid("puncture vertex " + std::to_string(*puncture) + " is out of range");
+    return sphere_with_puncture(m, opt, *puncture);
+  }
+  // The default puncture first; if the map folds a face (the link of the puncture can come
+  // out far from star-shaped), two more candidates are tried -- the vertex of highest degree
+  // and the vertex farthest from the first -- and the best map is kept.
+  int p0 = mesh::default_hole_vertex(m);
+  ConformalMap best = sphere_with_puncture(m, opt, p0);
+  if (best.folded_faces == 0 && best.converged) return best;
+  std::vector<int> degree(nv, 0);
+  for (int f = 0; f < m.num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) ++degree[m.F(f, k)];
+  int p1 = static_cast<int>(std::max_element(degree.begin(), degree.end()) - degree.begin());
+  int p2 = 0;
+  for (int v = 0; v < nv; ++v)
+    if ((m.V.row(v) - m.V.row(p0)).norm() > (m.V.row(p2) - m.V.row(p0)).norm()) p2 = v;
+  for (int p : {p1, p2}) {
+    if (p == p0) continue;
+    ConformalMap c = sphere_with_puncture(m, opt, p);
+    if ((c.converged && !best.converged) ||
+        (c.converged == best.converged && c.folded_faces < best.folded_faces))
+      best = std::move(c);
+    if (best.folded_faces == 0 && best.converged) break;
+  }
+  return best;
 }
 
 }  // namespace brenier::conformal
