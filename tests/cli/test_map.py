@@ -1,0 +1,118 @@
+#!/usr/bin/python3
+"""The command-line contract of `brenier-compute map` (DESIGN.md).
+
+Usage: test_map.py BRENIER_COMPUTE DATA_DIR WORK_DIR
+Prints 'N passed, N failed'; exits non-zero on any failure.
+"""
+import json
+import math
+import os
+import subprocess
+import sys
+
+exe, data, work = sys.argv[1:4]
+os.makedirs(work, exist_ok=True)
+passed = failed = 0
+
+
+def check(cond, what):
+    global passed, failed
+    if cond:
+        passed += 1
+    else:
+        failed += 1
+        print("FAIL:", what)
+
+
+def run(*args):
+    p = subprocess.run([exe, *args], capture_output=True, text=True, timeout=600)
+    return p.returncode, p.stdout, p.stderr
+
+
+def read_off(path):
+    toks = [l.split("#")[0] for l in open(path)]
+    toks = " ".join(toks).split()
+    assert toks[0] == "OFF"
+    nv, nf = int(toks[1]), int(toks[2])
+    i = 4
+    verts = []
+    for _ in range(nv):
+        verts.append(tuple(float(x) for x in toks[i:i + 3]))
+        i += 3
+    faces = []
+    for _ in range(nf):
+        k = int(toks[i])
+        faces.append(tuple(int(x) for x in toks[i + 1:i + 1 + k]))
+        i += 1 + k
+    return verts, faces
+
+
+def read_obj(path):
+    v, vt, f = [], [], []
+    for line in open(path):
+        p = line.split()
+        if not p:
+            continue
+        if p[0] == "v":
+            v.append(tuple(map(float, p[1:4])))
+        elif p[0] == "vt":
+            vt.append(tuple(map(float, p[1:3])))
+        elif p[0] == "f":
+            f.append(tuple(p[1:]))
+    return v, vt, f
+
+
+# Disk: lion-head.
+out = os.path.join(work, "lion-disk.obj")
+rc, so, se = run("map", os.path.join(data, "lion-head.off"), "--domain", "disk", "--method", "conformal",
+                 "-o", out, "--json")
+check(rc == 0 and se == "", f"lion-head disk map: exit {rc}, stderr {se!r}")
+d = json.loads(so)
+for key in ["mesh", "seconds", "conformal", "quality"]:
+    check(key in d, f"JSON lacks {key}")
+check(set(["vertices", "faces", "boundary_loops", "genus"]) <= set(d["mesh"]), "mesh keys")
+check("total" in d["seconds"], "seconds.total")
+check(set(["newton_iterations", "max_curvature_error"]) <= set(d["conformal"]), "conformal keys")
+q = d["quality"]
+check(q["flipped_faces"] == 0, "lion-head folds nothing")
+check(set(["mean", "p95", "max"]) <= set(q["angle_distortion_deg"]), "angle_distortion_deg keys")
+check(set(["mean_abs", "p95_abs", "max_abs"]) <= set(q["area_distortion_log"]), "area_distortion_log keys")
+check(d["conformal"]["max_curvature_error"] <= 1e-7, "converged to the tolerance")
+iv, ifaces = read_off(os.path.join(data, "lion-head.off"))
+v, vt, f = read_obj(out)
+check(len(v) == len(iv) and len(vt) == len(iv) and len(f) == len(ifaces), "vertex, vt and face counts")
+check(all(abs(a - b) < 1e-12 for p, r in zip(v[:50], iv[:50]) for a, b in zip(p, r)),
+      "v lines carry the input vertices in order")
+same = all(tuple(int(c.split("/")[0]) - 1 for c in fc) == fi for fc, fi in zip(f, ifaces))
+check(same, "faces keep the input order and winding")
+check(all(c.split("/")[0] == c.split("/")[1] for fc in f for c in fc), "faces are f a/a b/b c/c")
+check(max(math.hypot(*t) for t in vt) <= 1 + 1e-12, "vt inside the unit disk")
+check(sum(1 for t in vt if abs(math.hypot(*t) - 1) < 1e-12) >= 36, "boundary (36 vertices) on the unit circle")
+
+# Sphere: bear.
+out = os.path.join(work, "bear-sphere.obj")
+rc, so, se = run("map", os.path.join(data, "bear.off"), "--domain", "sphere", "-o", out, "--json")
+check(rc == 0, f"bear sphere map: exit {rc} {se!r}")
+v, vt, f = read_obj(out)
+check(len(v) == 13826 and not vt, "sphere OBJ: one v per input vertex, no vt")
+check(max(abs(math.sqrt(sum(c * c for c in p)) - 1) for p in v) < 1e-12, "positions on the unit sphere")
+check(json.loads(so)["quality"]["flipped_faces"] == 0, "bear folds nothing on the sphere")
+
+# Closed mesh onto the disk with --cut-hole.
+rc, so, se = run("map", os.path.join(data, "camel.off"), "--domain", "disk", "--cut-hole", "--json")
+check(rc == 0 and json.loads(so)["quality"]["flipped_faces"] == 0, f"camel --cut-hole: {rc} {se!r}")
+
+# Errors: exit 2 with one line.
+for args, what in [
+    (["map", os.path.join(data, "3torus.off"), "--domain", "disk"], "genus 3 onto the disk"),
+    (["map", os.path.join(data, "lion-head.off"), "--domain", "sphere"], "disk onto the sphere"),
+    (["map", os.path.join(data, "armadillo.off"), "--domain", "disk"], "closed mesh without --cut-hole"),
+    (["map", os.path.join(data, "lion-head.off"), "--center", "99999999"], "centre out of range"),
+    (["map", os.path.join(data, "lion-head.off"), "--method", "bogus"], "unknown method"),
+    (["map", "/nonexistent.off"], "missing file"),
+]:
+    rc, so, se = run(*args)
+    check(rc == 2 and len(se.splitlines()) == 1, f"{what}: exit {rc}, stderr {se!r}")
+
+print(f"{passed} passed, {failed} failed")
+sys.exit(1 if failed else 0)

