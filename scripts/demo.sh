@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Installs dependencies, builds brenier-compute and runs the main job on embedded defaults:
-# for now, it inspects a few real meshes (a scanned face, a closed model, a defective one).
+# it inspects a few real meshes (a scanned face, a closed model, a defective one) and maps
+# them conformally onto the unit disk and the unit sphere, writing the maps into out/.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 BUILD_DIR="${BUILD_DIR:-$ROOT/build}"
@@ -11,6 +12,9 @@ cmake -S "$ROOT" -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
 cmake --build "$BUILD_DIR" -j "$(nproc)" --target brenier-compute
 BC="$BUILD_DIR/tools/brenier-compute"
 M="$ROOT/data/meshes"
+
+OUT="$ROOT/out"
+mkdir -p "$OUT"
 
 for mesh in lion-head.off armadillo.off 3torus.off; do
   echo "== brenier-compute inspect data/meshes/$mesh"
@@ -26,3 +30,14 @@ set +e
 echo "exit code $?"
 echo "== the same repaired with --fix-orientation --json"
 "$BC" inspect --fix-orientation --json "$M/blobby-shuffled.off"
+set -e
+
+echo
+echo "== brenier-compute map data/meshes/lion-head.off --domain disk -o out/lion-head-disk.obj (conformal, vt per vertex)"
+"$BC" map "$M/lion-head.off" --domain disk -o "$OUT/lion-head-disk.obj"
+echo
+echo "== brenier-compute map data/meshes/armadillo.off --domain sphere -o out/armadillo-sphere.obj"
+"$BC" map "$M/armadillo.off" --domain sphere -o "$OUT/armadillo-sphere.obj"
+echo
+echo "== brenier-compute map data/meshes/bunny00.off --domain disk --cut-hole --json (a closed surface opened and flattened)"
+"$BC" map "$M/bunny00.off" --domain disk --cut-hole --json

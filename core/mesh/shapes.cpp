@@ -165,4 +165,29 @@ TriMesh make_cylinder(int around, int rings, double radius, double height, bool 
   return from_lists(v, f);
 }
 
+TriMesh subdivide_midpoint(const TriMesh& m) {
+  std::vector<Eigen::Vector3d> v;
+  for (int i = 0; i < m.V.rows(); ++i) v.push_back(m.V.row(i).transpose());
+  std::map<std::pair<int, int>, int> mid;
+  auto midpoint = [&](int a, int b) {
+    auto key = std::minmax(a, b);
+    auto it = mid.find(key);
+    if (it != mid.end()) return it->second;
+    v.push_back(0.5 * (v[a] + v[b]));
+    int id = static_cast<int>(v.size()) - 1;
+    mid.emplace(key, id);
+    return id;
+  };
+  std::vector<std::array<int, 3>> f;
+  for (int t = 0; t < m.F.rows(); ++t) {
+    int a = m.F(t, 0), b = m.F(t, 1), c = m.F(t, 2);
+    int ab = midpoint(a, b), bc = midpoint(b, c), ca = midpoint(c, a);
+    f.push_back({a, ab, ca});
+    f.push_back({b, bc, ab});
+    f.push_back({c, ca, bc});
+    f.push_back({ab, bc, ca});
+  }
+  return from_lists(v, f);
+}
+
 }  // namespace brenier::mesh

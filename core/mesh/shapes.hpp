@@ -30,4 +30,8 @@ TriMesh make_torus(int n, int m, double R = 1.0, double r = 0.35);
 /// closed by a centre vertex (then the mesh is a disk); otherwise it is an annulus.
 TriMesh make_cylinder(int around, int rings, double radius, double height, bool cap_bottom);
 
+/// Splits every triangle into four at its edge midpoints (no smoothing): a mesh with the
+/// same geometry and about four times the vertices, for scaling benchmarks.
+TriMesh subdivide_midpoint(const TriMesh& mesh);
+
 }  // namespace brenier::mesh

@@ -1,0 +1,103 @@
+// Conformal maps on real meshes: time and quality (flipped faces, angle distortion), ours
+// beside CGAL's Discrete_conformal_map_parameterizer_3 (circular arc-length border, Eigen
+// solver) on the disk meshes. A timed harness: prints one table (Markdown).
+// Run: build/bench/bench_conformal [DATA_DIR]   (after scripts/fetch-data.sh)
+#include <CGAL/Polygon_mesh_processing/measure.h>
+#include <CGAL/Simple_cartesian.h>
+#include <CGAL/Surface_mesh.h>
+#include <CGAL/Surface_mesh_parameterization/Circular_border_parameterizer_3.h>
+#include <CGAL/Surface_mesh_parameterization/Discrete_conformal_map_parameterizer_3.h>
+#include <CGAL/Surface_mesh_parameterization/parameterize.h>
+
+#include <chrono>
+#include <cstdio>
+#include <string>
+
+#include "conformal/conformal_map.hpp"
+#include "mesh/shapes.hpp"
+#include "mesh/validate.hpp"
+#include "quality/quality.hpp"
+
+using namespace brenier;
+namespace SMP = CGAL::Surface_mesh_parameterization;
+using K = CGAL::Simple_cartesian<double>;
+using SurfaceMesh = CGAL::Surface_mesh<K::Point_3>;
+
+namespace {
+
+double now() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+
+void row(const std::string& name, int nv, const char* who, double secs, const quality::MapQuality& q,
+         const std::string& note = "") {
+  std::printf("| %s | %d | %s | %.3f | %d | %.2f | %.2f | %.1f | %s |\n", name.c_str(), nv, who, secs,
+              q.flipped_faces, q.angle_distortion_deg.mean, q.angle_distortion_deg.p95,
+              q.angle_distortion_deg.max, note.c_str());
+  std::fflush(stdout);
+}
+
+// CGAL's discrete conformal map with the boundary on a circle by arc length.
+bool cgal_dcm(const mesh::TriMesh& m, mesh::Vertices& out, double& secs) {
+  SurfaceMesh sm;
+  std::vector<SurfaceMesh::Vertex_index> vi;
+  for (int i = 0; i < m.num_vertices(); ++i) vi.push_back(sm.add_vertex(K::Point_3(m.V(i, 0), m.V(i, 1), m.V(i, 2))));
+  for (int f = 0; f < m.num_faces(); ++f) sm.add_face(vi[m.F(f, 0)], vi[m.F(f, 1)], vi[m.F(f, 2)]);
+  double t0 = now();
+  auto bhd = CGAL::Polygon_mesh_processing::longest_border(sm).first;
+  auto uv = sm.add_property_map<SurfaceMesh::Vertex_index, K::Point_2>("v:uv").first;
+  using Border = SMP::Circular_border_arc_length_parameterizer_3<SurfaceMesh>;
+  using Param = SMP::Discrete_conformal_map_parameterizer_3<SurfaceMesh, Border>;
+  SMP::Error_code err = SMP::parameterize(sm, Param(), bhd, uv);
+  secs = now() - t0;
+  if (err != SMP::OK) return false;
+  out = mesh::Vertices::Zero(m.num_vertices(), 3);
+  for (int i = 0; i < m.num_vertices(); ++i) {
+    out(i, 0) = uv[vi[i]].x();
+    out(i, 1) = uv[vi[i]].y();
+  }
+  return true;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string data = argc > 1 ? argv[1] : BRENIER_DATA_DIR;
+  std::printf("| mesh | vertices | method | seconds | flipped faces | angle mean (deg) | p95 | max | note |\n");
+  std::printf("| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n");
+  struct DiskCase {
+    std::string name;
+    mesh::TriMesh mesh;
+  };
+  std::vector<DiskCase> disks;
+  for (const char* f : {"lion-head.off", "mannequin-devil.off", "three_peaks.off", "nefertiti.off", "mushroom.off"})
+    disks.push_back({f, mesh::load_mesh(data + "/" + f).mesh});
+  {
+    mesh::TriMesh big = mesh::subdivide_midpoint(mesh::subdivide_midpoint(mesh::load_mesh(data + "/lion-head.off").mesh));
+    disks.push_back({"lion-head x16 (midpoint subdivided twice)", big});
+  }
+  for (const auto& c : disks) {
+    double t0 = now();
+    conformal::ConformalMap map = conformal::map_to_disk(c.mesh);
+    double secs = now() - t0;
+    row(c.name, c.mesh.num_vertices(), "brenier disk", secs,
+        quality::measure(c.mesh, map.positions, quality::Target::kPlane),
+        std::to_string(map.newton_iterations) + " Newton its, max|K-Kbar| " +
+            std::to_string(map.max_curvature_error));
+    mesh::Vertices uv;
+    double cs = 0;
+    if (cgal_dcm(c.mesh, uv, cs))
+      row(c.name, c.mesh.num_vertices(), "CGAL DCM", cs, quality::measure(c.mesh, uv, quality::Target::kPlane));
+    else
+      std::printf("| %s | %d | CGAL DCM | - | - | - | - | - | failed |\n", c.name.c_str(), c.mesh.num_vertices());
+  }
+  for (const char* f : {"bear.off", "armadillo.off", "camel.off", "man.off", "dino.off", "bunny00.off"}) {
+    mesh::TriMesh m = mesh::load_mesh(data + "/" + f).mesh;
+    double t0 = now();
+    conformal::ConformalMap map = conformal::map_to_sphere(m);
+    double secs = now() - t0;
+    row(f, m.num_vertices(), "brenier sphere", secs, quality::measure(m, map.positions, quality::Target::kSphere),
+        std::to_string(map.newton_iterations) + " Newton its");
+  }
+  return 0;
+}
