@@ -3,8 +3,6 @@
 #include <Eigen/CholmodSupport>
 #include <Eigen/SparseCholesky>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <numbers>
 #include <vector>
 
@@ -153,7 +151,6 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
       if (halvings > 0) T = before;
       Eigen::VectorXd trial = r.u + t * du;
       int fl = T.make_delaunay(trial);
-      if (std::getenv("BRENIER_DEBUG")) std::fprintf(stderr, "t=%g flips=%d\n", t, fl);
       if (fl < 0) {
         blocked = blocked || fl == -1;
         continue;

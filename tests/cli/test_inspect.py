@@ -12,26 +12,14 @@ Prints 'N passed, N failed' and exits non-zero on any failure.
 """
 import json
 import os
-import subprocess
 import sys
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from clitest import Checks  # noqa: E402
+
 exe, fixtures, data = sys.argv[1:4]
-passed = failed = 0
-
-
-def check(cond, what):
-    global passed, failed
-    if cond:
-        passed += 1
-    else:
-        failed += 1
-        print("FAIL:", what)
-
-
-def run(*args):
-    p = subprocess.run([exe, *args], capture_output=True, text=True, timeout=300)
-    return p.returncode, p.stdout, p.stderr
-
+T = Checks(exe)
+check, run = T.check, T.run
 
 for name in sorted(os.listdir(os.path.join(fixtures, "malformed"))):
     rc, out, err = run("inspect", os.path.join(fixtures, "malformed", name))
@@ -77,5 +65,4 @@ for name in sorted(os.listdir(data)):
             check(d["class"] in ("disk", "sphere", "other"), f"{name}: class {d['class']}")
             counts[d["class"]] = counts.get(d["class"], 0) + 1
 print("classes of real meshes:", counts)
-print(f"{passed} passed, {failed} failed")
-sys.exit(1 if failed else 0)
+T.finish()

@@ -7,26 +7,14 @@ Prints 'N passed, N failed'; exits non-zero on any failure.
 import json
 import math
 import os
-import subprocess
 import sys
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from clitest import Checks  # noqa: E402
+
 exe, data, work = sys.argv[1:4]
-os.makedirs(work, exist_ok=True)
-passed = failed = 0
-
-
-def check(cond, what):
-    global passed, failed
-    if cond:
-        passed += 1
-    else:
-        failed += 1
-        print("FAIL:", what)
-
-
-def run(*args):
-    p = subprocess.run([exe, *args], capture_output=True, text=True, timeout=600)
-    return p.returncode, p.stdout, p.stderr
+T = Checks(exe)
+check, run = T.check, T.run
 
 
 def read_off(path):
@@ -114,5 +102,4 @@ for args, what in [
     rc, so, se = run(*args)
     check(rc == 2 and len(se.splitlines()) == 1, f"{what}: exit {rc}, stderr {se!r}")
 
-print(f"{passed} passed, {failed} failed")
-sys.exit(1 if failed else 0)
+T.finish()
