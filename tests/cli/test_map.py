@@ -14,6 +14,7 @@ from clitest import Checks  # noqa: E402
 
 exe, data, work = sys.argv[1:4]
 T = Checks(exe)
+os.makedirs(work, exist_ok=True)
 check, run = T.check, T.run
 
 
