@@ -107,10 +107,10 @@ TEST(DiskMap, HemisphereIsTheStereographicProjection) {
     TriMesh m = mesh::make_hemisphere(rings);
     int b = mesh::boundary_loops(m)[0][0];
     ConformalOptions o = markers(0, b);
-    o.tolerance = 1e-10;
+    o.tolerance = 1e-9;
     ConformalMap c = map_to_disk(m, o);
     ASSERT_TRUE(c.converged) << c.max_curvature_error;
-    EXPECT_LE(c.max_curvature_error, 1e-10);
+    EXPECT_LE(c.max_curvature_error, 1e-9);
     EXPECT_LT(max_radius_error_on_boundary(m, c.positions), 1e-14);
     // Rotation: the boundary marker b goes to 1, and stereographic sends it to (x_b, y_b).
     std::complex<double> rot = std::conj(std::complex<double>(m.V(b, 0), m.V(b, 1)));
@@ -161,7 +161,7 @@ TEST(DiskMap, LongCylinderSurvivesHugeConformalFactors) {
   TriMesh m = mesh::make_cylinder(24, 97, 1.0, 12.0, true);
   ConformalMap c = map_to_disk(m);
   ASSERT_TRUE(c.converged) << c.max_curvature_error;
-  EXPECT_LE(c.max_curvature_error, 1e-8);
+  EXPECT_LE(c.max_curvature_error, 1e-7);  // the default tolerance
   EXPECT_EQ(quality::measure(m, c.positions, quality::Target::kPlane).flipped_faces, 0);
   double span = std::exp(2 * (c.lambda.maxCoeff() - c.lambda.minCoeff()));
   EXPECT_GT(span, 1e6) << "area factors span only " << span;
