@@ -103,4 +103,15 @@ for args, what in [
     rc, so, se = run(*args)
     check(rc == 2 and len(se.splitlines()) == 1, f"{what}: exit {rc}, stderr {se!r}")
 
+# Never a crash: every real mesh onto both domains exits 0, 2 (unfit input) or 3 (no
+# guaranteed result), with exactly one stderr line when it fails.
+for name in sorted(os.listdir(data)):
+    if name.startswith("."):
+        continue
+    for domain in ("disk", "sphere"):
+        rc, so, se = run("map", os.path.join(data, name), "--domain", domain)
+        check(rc in (0, 2, 3), f"{name} onto the {domain}: exit {rc} (a crash or signal?)")
+        if rc != 0:
+            check(len(se.splitlines()) == 1, f"{name} onto the {domain}: stderr {se!r}")
+
 T.finish()
