@@ -582,6 +582,27 @@ ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions
     out.flips = disk.flips;
   }
 
+  // Input faces the intrinsic flow folds are repaired in the plane, before the projection,
+  // by the same mean-value Tutte embedding as for the disk (the link polygon held fixed).
+  {
+    const int nc = cut.mesh.num_vertices();
+    mesh::Vertices P = mesh::Vertices::Zero(nc, 3);
+    for (int i = 0; i < nc; ++i) P.row(i) << z[i].real(), z[i].imag(), 0.0;
+    int folds = quality::measure(cut.mesh, P, quality::Target::kPlane).flipped_faces;
+    if (folds > 0) {
+      std::vector<char> fixed(nc, 0);
+      // A named copy: a range-for over .at(0) of the returned temporary would dangle.
+      const std::vector<int> link = mesh::boundary_loops(cut.mesh).at(0);
+      for (int i : link) fixed[i] = 1;
+      mesh::Vertices R = P;
+      int replaced = tutte_repair(cut.mesh, R, fixed);
+      if (replaced >= 0 && quality::measure(cut.mesh, R, quality::Target::kPlane).flipped_faces < folds) {
+        for (int i = 0; i < nc; ++i) z[i] = Complex(R(i, 0), R(i, 1));
+        out.relaxed_vertices += replaced;
+      }
+    }
+  }
+
   mesh::Vertices X(nv, 3);
   X.row(p) = Eigen::RowVector3d(0, 0, 1);
   for (int i = 0; i < cut.mesh.num_vertices(); ++i)
@@ -621,7 +642,7 @@ ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions
   std::vector<char> fixed(nv, 0);
   if (opt.sphere_markers)
     for (int v : *opt.sphere_markers) fixed[v] = 1;
-  out.relaxed_vertices = untangle(m, X, true, fixed, out.folded_faces);
+  out.relaxed_vertices += untangle(m, X, true, fixed, out.folded_faces);
   out.positions = X;
   mesh::TriMesh image{X, m.F};
   out.lambda = lambda_from_areas(m, image);
