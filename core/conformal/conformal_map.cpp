@@ -18,7 +18,6 @@
 #include "quality/quality.hpp"
 
 namespace brenier::conformal {
-namespace {
 
 // Boundary targets that make the boundary a polygon inscribed in a circle. For boundary
 // edge lengths L_i, the circle radius R solves sum_i 2 asin(L_i / 2R) = 2 pi (a decreasing
@@ -82,6 +81,8 @@ void inscribed_targets(const std::vector<double>& L, std::vector<double>& turnin
   tau.resize(m);
   for (size_t i = 0; i < m; ++i) tau[i] = std::tan(0.5 * a[i]);
 }
+
+namespace {
 
 // Lays out a flat intrinsic triangulation in the plane face by face (breadth-first), placing
 // each new vertex from the two of its face that are already placed and its two edge lengths.

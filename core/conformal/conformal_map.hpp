@@ -46,6 +46,13 @@ struct ConformalMap {
   int folded_faces = 0;
 };
 
+/// Boundary curvature targets of the disk map (the turning angles of a polygon with edge
+/// lengths L, in loop order, inscribed in a circle): turning[i] at vertex i between edges
+/// i-1 and i, summing to 2 pi; tau[i] = tan(a_i / 2) for the central angles a_i, which give
+/// the targets' derivative. Precondition: L describes a polygon (each L_i < sum of others).
+void inscribed_targets(const std::vector<double>& L, std::vector<double>& turning,
+                       std::vector<double>& tau);
+
 /// Repairs input faces that the intrinsic map folds: the intrinsic triangulation the flow
 /// runs on differs from the input's (Delaunay flips, boundary splits), and an input face
 /// whose corner angle is nearly pi, or whose far corner lies between a boundary chord and

@@ -233,3 +233,41 @@ TEST(Quality, IdentityHasNoDistortionAndBeltramiIsZero) {
   mirror.col(0) *= -1.0;
   EXPECT_EQ(quality::measure(m, mirror, quality::Target::kPlane).flipped_faces, m.num_faces());
 }
+
+TEST(DiskTargets, InscribedPolygonTurningAnglesAndGaussBonnet) {
+  // Random points on a circle of radius 2.5: the targets computed from the chord lengths
+  // alone must be the polygon's own turning angles (pi minus its interior angles), and sum
+  // to 2 pi (Gauss-Bonnet for the disk, chi = 1).
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> gap(0.05, 1.0);
+  for (int trial = 0; trial < 20; ++trial) {
+    std::vector<double> ang;
+    double a = 0;
+    for (int i = 0; i < 12; ++i) ang.push_back(a += gap(rng));
+    const double scale = 2 * std::numbers::pi / (a + gap(rng));  // all inside [0, 2 pi)
+    for (double& x : ang) x *= scale;
+    const int m = static_cast<int>(ang.size());
+    std::vector<std::complex<double>> p;
+    for (double x : ang) p.push_back(2.5 * std::polar(1.0, x));
+    std::vector<double> L(m), turning, tau;
+    for (int i = 0; i < m; ++i) L[i] = std::abs(p[(i + 1) % m] - p[i]);
+    inscribed_targets(L, turning, tau);
+    double sum = 0;
+    for (int i = 0; i < m; ++i) {
+      std::complex<double> in = p[i] - p[(i + m - 1) % m], out = p[(i + 1) % m] - p[i];
+      double exterior = std::arg(out / in);  // turning angle at vertex i
+      EXPECT_NEAR(turning[i], exterior, 1e-10) << "trial " << trial << " vertex " << i;
+      sum += turning[i];
+    }
+    EXPECT_NEAR(sum, 2 * std::numbers::pi, 1e-12);
+  }
+  // A polygon whose circle centre lies outside it (one long edge: the major-arc case).
+  std::vector<std::complex<double>> q = {std::polar(1.0, 0.0), std::polar(1.0, 0.4), std::polar(1.0, 0.9),
+                                         std::polar(1.0, 1.3)};
+  std::vector<double> L(4), turning, tau;
+  for (int i = 0; i < 4; ++i) L[i] = std::abs(q[(i + 1) % 4] - q[i]);
+  inscribed_targets(L, turning, tau);
+  for (int i = 0; i < 4; ++i)
+    EXPECT_NEAR(turning[i], std::arg((q[(i + 1) % 4] - q[i]) / (q[i] - q[(i + 3) % 4])), 1e-10) << i;
+  EXPECT_LT(tau[3], 0.0) << "the long edge subtends the major arc";
+}
