@@ -1,8 +1,7 @@
 #include "conformal/conformal_map.hpp"
 
 #include <Eigen/Dense>
-#include <Eigen/IterativeLinearSolvers>
-#include <Eigen/SparseLU>
+#include <Eigen/UmfPackSupport>
 #include <map>
 #include <algorithm>
 #include <cmath>
@@ -294,28 +293,12 @@ int tutte_repair(const mesh::TriMesh& m, mesh::Vertices& X, const std::vector<ch
   }
   Eigen::SparseMatrix<double> A(nv, nv);
   A.setFromTriplets(trip.begin(), trip.end());
-  // The solution differs from the conformal map only around the replaced vertices, so an
-  // iterative solve started from the map converges in a few steps; a direct LU otherwise.
-  Eigen::MatrixXd sol(nv, 2);
-  bool ok = true;
-  {
-    Eigen::BiCGSTAB<Eigen::SparseMatrix<double>, Eigen::IncompleteLUT<double>> it;
-    it.setTolerance(1e-13);
-    it.setMaxIterations(500);
-    it.compute(A);
-    for (int k = 0; k < 2 && ok; ++k) {
-      Eigen::VectorXd guess = X.col(k);
-      sol.col(k) = it.solveWithGuess(rhs.col(k), guess);
-      ok = it.info() == Eigen::Success && sol.col(k).allFinite();
-    }
-  }
-  if (!ok) {
-    Eigen::SparseLU<Eigen::SparseMatrix<double>> lu;
-    lu.compute(A);
-    if (lu.info() != Eigen::Success) return -1;
-    sol = lu.solve(rhs);
-    if (!sol.allFinite()) return -1;
-  }
+  // Sparse LU (UMFPACK, SuiteSparse) of the non-symmetric Tutte matrix.
+  Eigen::UmfPackLU<Eigen::SparseMatrix<double>> lu;
+  lu.compute(A);
+  if (lu.info() != Eigen::Success) return -1;
+  Eigen::MatrixXd sol = lu.solve(rhs);
+  if (!sol.allFinite()) return -1;
   X.leftCols(2) = sol;
   return replaced;
 }
