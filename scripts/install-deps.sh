@@ -11,6 +11,7 @@ PACKAGES=(
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libsqlite3-dev libssl-dev libcairo2-dev
   libgtest-dev libgmock-dev googletest libbenchmark-dev
+  python3
 )
 
 missing=()
