@@ -433,12 +433,17 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
     uv(v, 1) = z.imag();
   }
 
+  // log of the length scale from the surface to the disk at each vertex: e^{u_i} from the
+  // vertex scaling (l_ij = eta_ij e^{(u_i + u_j) / 2}: an edge with both ends near i scales
+  // by e^{u_i}), 1 / R from fitting the unit circle, then |M'(z)| of each Moebius map below.
+  Eigen::VectorXd log_scale = (yr.u.head(nv).array() - std::log(R)).matrix();
+
   // Moebius normalization (Thm 2.13).
   if (opt.center_vertex) {
-    apply_disk_mobius(uv, Complex(uv(*opt.center_vertex, 0), uv(*opt.center_vertex, 1)), 0.0);
+    apply_disk_mobius(uv, Complex(uv(*opt.center_vertex, 0), uv(*opt.center_vertex, 1)), 0.0, &log_scale);
     out.normalization = "center vertex " + std::to_string(*opt.center_vertex) + " at 0";
   } else {
-    center_disk(uv, m.F, mesh::face_areas(m));
+    center_disk(uv, m.F, mesh::face_areas(m), 1e-12, 200, &log_scale);
     out.normalization = "area centre of mass at 0";
   }
   BRENIER_CHECK(uv.allFinite(), "Moebius normalization produced non-finite positions");
@@ -465,8 +470,8 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
     }
   }
   out.folded_faces = quality::measure(m, out.positions, quality::Target::kPlane).flipped_faces;
-  mesh::TriMesh image{out.positions, m.F};
-  out.lambda = lambda_from_areas(m, image);
+  // g_surface = e^{2 lambda} |dz|^2 in the disk: lambda = -log(length scale).
+  out.lambda = -log_scale;
   return out;
 }
 

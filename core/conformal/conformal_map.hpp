@@ -32,8 +32,9 @@ struct ConformalMap {
   /// Sphere: #V by 3 positions on the unit sphere.
   mesh::Vertices positions;
   /// Per-vertex conformal factor lambda: the surface metric is e^{2 lambda} |dz|^2 in the
-  /// domain's coordinates (disk: the plane; sphere: the sphere's own metric), estimated from
-  /// the vertex-scaling factors of the final discrete metric.
+  /// domain's coordinates. Disk: from the discrete conformal factors, lambda_i = -(u_i -
+  /// log R + sum log |M'(z_i)|) through the circle scaling and the Moebius maps. Sphere
+  /// (metric of the unit sphere): estimated as half the log ratio of vertex areas.
   Eigen::VectorXd lambda;
   int newton_iterations = 0;
   double max_curvature_error = 0;  // max |K - Kbar| at the end

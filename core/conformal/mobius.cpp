@@ -8,17 +8,20 @@ namespace brenier::conformal {
 
 Complex disk_automorphism(Complex z, Complex a) { return (z - a) / (1.0 - std::conj(a) * z); }
 
-void apply_disk_mobius(mesh::UV& uv, Complex a, double theta) {
+void apply_disk_mobius(mesh::UV& uv, Complex a, double theta, Eigen::VectorXd* log_scale) {
   const Complex rot = std::polar(1.0, theta);
   for (int i = 0; i < uv.rows(); ++i) {
-    Complex w = rot * disk_automorphism(Complex(uv(i, 0), uv(i, 1)), a);
+    const Complex z(uv(i, 0), uv(i, 1));
+    if (log_scale)
+      (*log_scale)[i] += std::log(1.0 - std::norm(a)) - 2.0 * std::log(std::abs(1.0 - std::conj(a) * z));
+    Complex w = rot * disk_automorphism(z, a);
     uv(i, 0) = w.real();
     uv(i, 1) = w.imag();
   }
 }
 
 int center_disk(mesh::UV& uv, const mesh::Faces& F, const Eigen::VectorXd& area, double tol,
-                int max_iterations) {
+                int max_iterations, Eigen::VectorXd* log_scale) {
   const double total = area.sum();
   for (int it = 0; it < max_iterations; ++it) {
     Complex c = 0;
@@ -33,7 +36,7 @@ int center_disk(mesh::UV& uv, const mesh::Faces& F, const Eigen::VectorXd& area,
     // the step is damped so a stays well inside the disk.
     double r = std::abs(c);
     Complex a = r < 0.5 ? c : c * (0.5 / r);
-    apply_disk_mobius(uv, a, 0.0);
+    apply_disk_mobius(uv, a, 0.0, log_scale);
   }
   return max_iterations;
 }

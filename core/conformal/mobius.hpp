@@ -14,15 +14,17 @@ using Complex = std::complex<double>;
 /// The disk automorphism z -> (z - a) / (1 - conj(a) z), |a| < 1: sends a to 0.
 Complex disk_automorphism(Complex z, Complex a);
 
-/// Applies z -> e^{i theta} (z - a) / (1 - conj(a) z) to every row of uv (#V by 2).
-void apply_disk_mobius(mesh::UV& uv, Complex a, double theta);
+/// Applies z -> e^{i theta} (z - a) / (1 - conj(a) z) to every row of uv (#V by 2). When
+/// `log_scale` (#V) is given, log |M'(z)| = log(1 - |a|^2) - 2 log |1 - conj(a) z| is added
+/// to it per vertex, so a caller can follow the conformal factor through the map.
+void apply_disk_mobius(mesh::UV& uv, Complex a, double theta, Eigen::VectorXd* log_scale = nullptr);
 
 /// The disk automorphism that puts the centre of mass of the pushed-forward area at 0:
 /// the area of face f (`face_area`, #F, of the original surface) sits at the image of the
 /// face's centroid. Iterates a <- centroid, composing maps, until |centroid| <= tol.
 /// Returns the number of iterations. `uv` is updated in place.
 int center_disk(mesh::UV& uv, const mesh::Faces& F, const Eigen::VectorXd& face_area,
-                double tol = 1e-12, int max_iterations = 200);
+                double tol = 1e-12, int max_iterations = 200, Eigen::VectorXd* log_scale = nullptr);
 
 /// The same for points on the unit sphere (#V by 3), with the mass of each vertex (a third
 /// of its faces' areas) at the vertex, and the ball automorphism

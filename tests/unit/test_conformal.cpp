@@ -120,6 +120,14 @@ TEST(DiskMap, HemisphereIsTheStereographicProjection) {
       e = std::max(e, std::abs(rot * s - std::complex<double>(c.positions(v, 0), c.positions(v, 1))));
     }
     EXPECT_LT(e, 1e-8) << rings << " rings";
+    // The conformal factor is the stereographic one: the sphere's metric is
+    // 4 |dz|^2 / (1 + |z|^2)^2, so lambda = log 2 - log(1 + |z|^2), exactly again.
+    double le = 0;
+    for (int v = 0; v < m.num_vertices(); ++v) {
+      double z2 = c.positions.row(v).head<2>().squaredNorm();
+      le = std::max(le, std::abs(c.lambda[v] - (std::log(2.0) - std::log1p(z2))));
+    }
+    EXPECT_LT(le, 1e-7) << rings << " rings";
     EXPECT_EQ(quality::measure(m, c.positions, quality::Target::kPlane).flipped_faces, 0);
   }
 }
