@@ -2,6 +2,7 @@
 
 #include <Eigen/Dense>
 #include <Eigen/UmfPackSupport>
+#include <limits>
 #include <map>
 #include <algorithm>
 #include <cmath>
@@ -540,6 +541,7 @@ ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions
   ConformalMap out;
   std::vector<Complex> z;
   YamabeResult yr;
+  Eigen::VectorXd plane_log_scale;  // log length scale, surface -> plane, per cut vertex
   if (punctured_plane(m, p, cut, opt, z, yr)) {
     z.resize(cut.mesh.num_vertices());
     std::vector<int> link = mesh::boundary_loops(cut.mesh).at(0);
@@ -550,6 +552,7 @@ ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions
     for (int i : link) radius += std::abs(z[i] - centre);
     radius /= static_cast<double>(link.size());
     for (auto& w : z) w = (w - centre) * (rho / radius);
+    plane_log_scale = (yr.u.head(cut.mesh.num_vertices()).array() + std::log(rho / radius)).matrix();
     out.newton_iterations = yr.iterations;
     out.max_curvature_error = yr.residual;
     out.converged = yr.converged;
@@ -565,6 +568,7 @@ ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions
     z.resize(cut.mesh.num_vertices());
     for (int i = 0; i < cut.mesh.num_vertices(); ++i)
       z[i] = rho * Complex(disk.positions(i, 0), disk.positions(i, 1));
+    plane_log_scale = (std::log(rho) - disk.lambda.array()).matrix();
     out.newton_iterations = disk.newton_iterations;
     out.max_curvature_error = disk.max_curvature_error;
     out.converged = disk.converged;
@@ -598,6 +602,12 @@ ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions
     // conj: the stereographic projection from the north pole reverses orientation, so a
     // counter-clockwise plane lands outward-facing on the sphere only after a reflection.
     X.row(cut.vertex_origin[i]) = inverse_stereographic(std::conj(z[i])).transpose();
+  // log length scale, surface -> sphere: the plane's, then the inverse stereographic
+  // projection's 2 / (1 + |z|^2), then the centring maps' (the puncture has none: its
+  // factor is estimated from areas at the end).
+  Eigen::VectorXd log_scale = Eigen::VectorXd::Constant(nv, std::numeric_limits<double>::quiet_NaN());
+  for (int i = 0; i < cut.mesh.num_vertices(); ++i)
+    log_scale[cut.vertex_origin[i]] = plane_log_scale[i] + std::log(2.0 / (1.0 + std::norm(z[i])));
   if (opt.sphere_markers) {
     auto [a, b, c] = *opt.sphere_markers;
     auto proj = [&](int v) { return stereographic(X.row(v).transpose()); };
@@ -625,7 +635,7 @@ ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions
     out.normalization = "vertices " + std::to_string(a) + ", " + std::to_string(b) + ", " +
                         std::to_string(c) + " at 0, 1, infinity";
   } else {
-    center_sphere(X, m.F, area);
+    center_sphere(X, m.F, area, 1e-12, 200, &log_scale);
     out.normalization = "area centre of mass at the origin";
   }
   std::vector<char> fixed(nv, 0);
@@ -635,6 +645,9 @@ ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions
   out.positions = X;
   mesh::TriMesh image{X, m.F};
   out.lambda = lambda_from_areas(m, image);
+  if (!opt.sphere_markers)  // (with markers the plane Moebius map is not followed)
+    for (int v = 0; v < nv; ++v)
+      if (std::isfinite(log_scale[v])) out.lambda[v] = -log_scale[v];
   return out;
 }
 

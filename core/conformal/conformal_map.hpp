@@ -34,7 +34,9 @@ struct ConformalMap {
   /// Per-vertex conformal factor lambda: the surface metric is e^{2 lambda} |dz|^2 in the
   /// domain's coordinates. Disk: from the discrete conformal factors, lambda_i = -(u_i -
   /// log R + sum log |M'(z_i)|) through the circle scaling and the Moebius maps. Sphere
-  /// (metric of the unit sphere): estimated as half the log ratio of vertex areas.
+  /// (metric of the unit sphere): likewise through the plane's scaling, the inverse
+  /// stereographic projection and the centring maps; estimated as half the log ratio of
+  /// vertex areas at the puncture and when markers are used.
   Eigen::VectorXd lambda;
   int newton_iterations = 0;
   double max_curvature_error = 0;  // max |K - Kbar| at the end

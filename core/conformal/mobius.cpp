@@ -42,7 +42,7 @@ int center_disk(mesh::UV& uv, const mesh::Faces& F, const Eigen::VectorXd& area,
 }
 
 int center_sphere(mesh::Vertices& X, const mesh::Faces& F, const Eigen::VectorXd& area, double tol,
-                  int max_iterations) {
+                  int max_iterations, Eigen::VectorXd* log_scale) {
   // Vertex masses (a third of the adjacent faces' areas) at the vertices: unlike chord
   // centroids of faces, these can balance even for a coarse mesh (a tetrahedron's faces'
   // chord centroids can all lie in one hemisphere).
@@ -60,6 +60,7 @@ int center_sphere(mesh::Vertices& X, const mesh::Faces& F, const Eigen::VectorXd
       Eigen::Vector3d x = X.row(i).transpose();
       Eigen::Vector3d d = x - a;
       Eigen::Vector3d y = (1 - a2) * d / d.squaredNorm() - a;
+      if (log_scale) (*log_scale)[i] += std::log((1 - a2) / d.squaredNorm());
       X.row(i) = y.normalized().transpose();
     }
   }

@@ -28,9 +28,11 @@ int center_disk(mesh::UV& uv, const mesh::Faces& F, const Eigen::VectorXd& face_
 
 /// The same for points on the unit sphere (#V by 3), with the mass of each vertex (a third
 /// of its faces' areas) at the vertex, and the ball automorphism
-/// x -> (1 - |a|^2)(x - a) / |x - a|^2 - a, which maps the sphere to itself and a to 0.
+/// x -> (1 - |a|^2)(x - a) / |x - a|^2 - a, which maps the sphere to itself and a to 0;
+/// with `log_scale`, its stretch on the sphere, log((1 - |a|^2) / |x - a|^2), is added.
 int center_sphere(mesh::Vertices& X, const mesh::Faces& F, const Eigen::VectorXd& face_area,
-                  double tol = 1e-12, int max_iterations = 200);
+                  double tol = 1e-12, int max_iterations = 200,
+                  Eigen::VectorXd* log_scale = nullptr);
 
 /// Stereographic projection from the north pole (0,0,1) to the plane and its inverse.
 Complex stereographic(const Eigen::Vector3d& x);
