@@ -304,6 +304,23 @@ int tutte_repair(const mesh::TriMesh& m, mesh::Vertices& X, const std::vector<ch
   return replaced;
 }
 
+// Planar positions X (#V by 3, z = 0) of `m`: when faces are folded, the Tutte repair is
+// kept if it folds fewer. Returns the vertices whose weights it replaced (0 if unused);
+// `folded` gets the folds left.
+int repair_planar_folds(const mesh::TriMesh& m, mesh::Vertices& X, const std::vector<char>& fixed,
+                        int& folded) {
+  folded = quality::measure(m, X, quality::Target::kPlane).flipped_faces;
+  if (folded == 0) return 0;
+  mesh::Vertices repaired = X;
+  int replaced = tutte_repair(m, repaired, fixed);
+  if (replaced < 0) return 0;
+  int after = quality::measure(m, repaired, quality::Target::kPlane).flipped_faces;
+  if (after >= folded) return 0;
+  X = std::move(repaired);
+  folded = after;
+  return replaced;
+}
+
 }  // namespace
 
 ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
@@ -460,17 +477,7 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
   out.positions.leftCols(2) = uv;
   std::vector<char> fixed(nv);
   for (int v = 0; v < nv; ++v) fixed[v] = on_boundary[v];
-  quality::MapQuality before = quality::measure(m, out.positions, quality::Target::kPlane);
-  if (before.flipped_faces > 0) {
-    mesh::Vertices repaired = out.positions;
-    int replaced = tutte_repair(m, repaired, fixed);
-    if (replaced >= 0 && quality::measure(m, repaired, quality::Target::kPlane).flipped_faces <
-                             before.flipped_faces) {
-      out.positions = repaired;
-      out.relaxed_vertices = replaced;
-    }
-  }
-  out.folded_faces = quality::measure(m, out.positions, quality::Target::kPlane).flipped_faces;
+  out.relaxed_vertices = repair_planar_folds(m, out.positions, fixed, out.folded_faces);
   // g_surface = e^{2 lambda} |dz|^2 in the disk: lambda = -log(length scale).
   out.lambda = -log_scale;
   return out;
@@ -488,12 +495,12 @@ namespace {
 // stereographic projection of the mesh itself (Moebius invariance of vertex scaling).
 // Returns false when the flow is blocked by a degenerate link triangle.
 bool punctured_plane(const mesh::TriMesh& m, int p, const mesh::CutHole& cut,
-                     const ConformalOptions& opt, std::vector<Complex>& z, YamabeResult& yr) {
+                     const std::vector<int>& link, const ConformalOptions& opt,
+                     std::vector<Complex>& z, YamabeResult& yr) {
   const mesh::TriMesh& c = cut.mesh;
   const int nc = c.num_vertices();
   std::vector<char> fixed(nc, 0);
   Eigen::VectorXd u = Eigen::VectorXd::Zero(nc);
-  std::vector<int> link = mesh::boundary_loops(c).at(0);
   double mean_log = 0;
   for (int i : link) mean_log += std::log((m.V.row(p) - m.V.row(cut.vertex_origin[i])).norm());
   mean_log /= static_cast<double>(link.size());
@@ -527,6 +534,7 @@ namespace {
 ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions& opt, int p) {
   const int nv = m.num_vertices();
   mesh::CutHole cut = mesh::cut_hole(m, p);
+  const std::vector<int> link = mesh::boundary_loops(cut.mesh).at(0);  // the puncture's link
 
   // The removed star becomes the cap around the north pole; rho gives the cap the star's
   // share of the area (the Moebius centring below corrects the rest).
@@ -542,9 +550,8 @@ ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions
   std::vector<Complex> z;
   YamabeResult yr;
   Eigen::VectorXd plane_log_scale;  // log length scale, surface -> plane, per cut vertex
-  if (punctured_plane(m, p, cut, opt, z, yr)) {
+  if (punctured_plane(m, p, cut, link, opt, z, yr)) {
     z.resize(cut.mesh.num_vertices());
-    std::vector<int> link = mesh::boundary_loops(cut.mesh).at(0);
     Complex centre = 0;
     for (int i : link) centre += z[i];
     centre /= static_cast<double>(link.size());
@@ -581,19 +588,11 @@ ConformalMap sphere_with_puncture(const mesh::TriMesh& m, const ConformalOptions
     const int nc = cut.mesh.num_vertices();
     mesh::Vertices P = mesh::Vertices::Zero(nc, 3);
     for (int i = 0; i < nc; ++i) P.row(i) << z[i].real(), z[i].imag(), 0.0;
-    int folds = quality::measure(cut.mesh, P, quality::Target::kPlane).flipped_faces;
-    if (folds > 0) {
-      std::vector<char> fixed(nc, 0);
-      // A named copy: a range-for over .at(0) of the returned temporary would dangle.
-      const std::vector<int> link = mesh::boundary_loops(cut.mesh).at(0);
-      for (int i : link) fixed[i] = 1;
-      mesh::Vertices R = P;
-      int replaced = tutte_repair(cut.mesh, R, fixed);
-      if (replaced >= 0 && quality::measure(cut.mesh, R, quality::Target::kPlane).flipped_faces < folds) {
-        for (int i = 0; i < nc; ++i) z[i] = Complex(R(i, 0), R(i, 1));
-        out.relaxed_vertices += replaced;
-      }
-    }
+    std::vector<char> fixed(nc, 0);
+    for (int i : link) fixed[i] = 1;
+    int folds = 0;
+    out.relaxed_vertices += repair_planar_folds(cut.mesh, P, fixed, folds);
+    for (int i = 0; i < nc; ++i) z[i] = Complex(P(i, 0), P(i, 1));
   }
 
   mesh::Vertices X(nv, 3);

@@ -110,6 +110,14 @@ bool IntrinsicTriangulation::is_delaunay(int h, const Eigen::VectorXd& u) const 
   return sum >= -1e-10 * std::max({1.0, std::abs(cot_a), std::abs(cot_b)});
 }
 
+void IntrinsicTriangulation::link_face(int f, int h0, int h1, int h2) {
+  he_next_[h0] = h1;
+  he_next_[h1] = h2;
+  he_next_[h2] = h0;
+  he_face_[h0] = he_face_[h1] = he_face_[h2] = f;
+  face_he_[f] = h0;
+}
+
 void IntrinsicTriangulation::flip(int h, double new_eta) {
   // Before: face A = a0 (i->j), a1 (j->k), a2 (k->i); face B = t0 (j->i), t1 (i->l), t2 (l->j).
   // After:  face A = a0 (l->k), a2 (k->i), t1 (i->l); face B = t0 (k->l), t2 (l->j), a1 (j->k).
@@ -117,18 +125,10 @@ void IntrinsicTriangulation::flip(int h, double new_eta) {
   int t0 = he_twin_[h], t1 = he_next_[t0], t2 = he_next_[t1];
   int k = he_origin_[a2], l = he_origin_[t2];
   int fa = he_face_[a0], fb = he_face_[t0];
-  he_next_[a0] = a2;
-  he_next_[a2] = t1;
-  he_next_[t1] = a0;
-  he_next_[t0] = t2;
-  he_next_[t2] = a1;
-  he_next_[a1] = t0;
+  link_face(fa, a0, a2, t1);
+  link_face(fb, t0, t2, a1);
   he_origin_[a0] = l;
   he_origin_[t0] = k;
-  he_face_[a0] = he_face_[a2] = he_face_[t1] = fa;
-  he_face_[t0] = he_face_[t2] = he_face_[a1] = fb;
-  face_he_[fa] = a0;
-  face_he_[fb] = t0;
   eta_[he_edge_[h]] = new_eta;
   ++total_flips_;
 }
@@ -158,18 +158,11 @@ int IntrinsicTriangulation::split_boundary_edge(int h, Eigen::VectorXd& u) {
   const int f1 = he_face_[h0];
   // Face f1 = (i, m, k): h0 (i->m), n0 (m->k), h2 (k->i).
   // Face f2 = (m, j, k): n1 (m->j), h1 (j->k), n2 (k->m).
-  he_next_[h0] = n0;
-  he_next_[n0] = h2;
-  he_next_[h2] = h0;
-  he_next_[n1] = h1;
-  he_next_[h1] = n2;
-  he_next_[n2] = n1;
+  link_face(f1, h0, n0, h2);
+  link_face(f2, n1, h1, n2);
   he_origin_[n0] = m;
   he_origin_[n1] = m;
   he_origin_[n2] = k;
-  he_face_[h0] = he_face_[n0] = he_face_[h2] = f1;
-  he_face_[n1] = he_face_[h1] = he_face_[n2] = f2;
-  face_he_[f1] = h0;
   he_twin_[n0] = n2;
   he_twin_[n2] = n0;
   eta_[he_edge_[h0]] = base(0.5 * c, i, m);

@@ -66,6 +66,8 @@ class IntrinsicTriangulation {
 
  private:
   void flip(int h, double new_eta);
+  // Makes h0 -> h1 -> h2 the half-edge cycle of face f.
+  void link_face(int f, int h0, int h1, int h2);
   bool is_delaunay(int h, const Eigen::VectorXd& u) const;
   template <typename NewLength>
   int flip_to_delaunay(const Eigen::VectorXd& u, NewLength new_eta);
