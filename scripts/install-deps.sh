@@ -7,6 +7,9 @@ PACKAGES=(
   build-essential cmake ninja-build pkg-config git ca-certificates
   libeigen3-dev libcgal-dev libgmp-dev libmpfr-dev libboost-dev
   libopenmesh-dev libsuitesparse-dev
+  # CHOLMOD's supernodal Cholesky runs on BLAS; with this installed, Debian's alternatives
+  # give it OpenBLAS (the single-threaded build: no spinning threads in a worker pool).
+  libopenblas0-serial
   libspdlog-dev libfmt-dev libcli11-dev nlohmann-json3-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libsqlite3-dev libssl-dev libcairo2-dev

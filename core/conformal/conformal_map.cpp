@@ -245,54 +245,87 @@ namespace {
 // mean value coordinates where they are not. All weights positive and the boundary on a
 // convex polygon (inscribed in the circle): by Tutte's and Floater's theorems the result has
 // no folded face. Returns the number of vertices whose weights were replaced.
-int tutte_repair(const mesh::TriMesh& m, mesh::Vertices& X, const std::vector<char>& boundary) {
-  const int nv = m.num_vertices();
-  // Ordered one-rings from the oriented faces: next[v][w] = the vertex after w around v.
-  std::vector<std::vector<std::pair<int, int>>> fan(nv);
+// Oriented one-rings: fan[v] lists the (a, b) of every face (v, a, b) around v.
+using Fans = std::vector<std::vector<std::pair<int, int>>>;
+Fans oriented_fans(const mesh::TriMesh& m) {
+  Fans fan(m.num_vertices());
   for (int f = 0; f < m.num_faces(); ++f)
     for (int k = 0; k < 3; ++k) fan[m.F(f, k)].push_back({m.F(f, (k + 1) % 3), m.F(f, (k + 2) % 3)});
-  auto mvc = [&](int v, const auto& pos, bool planar, std::vector<std::pair<int, double>>& w) {
-    // Each fan triangle (v, a, b) adds tan(alpha/2) / |a - v| to a and to b, alpha = angle
-    // a-v-b (signed in the plane: a folded or reflex ring gives some weight <= 0).
-    w.clear();
-    std::map<int, double> acc;
-    double total_angle = 0;
-    for (auto [a, b] : fan[v]) {
-      Eigen::Vector3d pv = pos.row(v).transpose(), pa = pos.row(a).transpose(), pb = pos.row(b).transpose();
-      Eigen::Vector3d da = pa - pv, db = pb - pv;
-      double alpha = planar ? std::atan2(da.x() * db.y() - da.y() * db.x(), da.dot(db))
-                            : std::atan2(da.cross(db).norm(), da.dot(db));
-      total_angle += alpha;
-      double t = std::tan(alpha / 2);
-      acc[a] += t / da.norm();
-      acc[b] += t / db.norm();
-    }
-    for (auto [k, x] : acc) w.push_back({k, x});
-    return total_angle;
+  return fan;
+}
+
+int count_planar_folds(const mesh::TriMesh& m, const mesh::Vertices& X) {
+  int n = 0;
+  for (int f = 0; f < m.num_faces(); ++f) n += face_folded(m, X, f, false);
+  return n;
+}
+
+// Floater's mean value coordinates of v among its ring (Floater 2003): each fan triangle
+// (v, a, b) adds tan(alpha/2) / |a - v| to a and to b, alpha = angle a-v-b (signed in the
+// plane: a folded or reflex ring gives some weight <= 0). Returns the angle sum.
+double mean_value_weights(const std::vector<std::pair<int, int>>& fan, int v, const mesh::Vertices& pos,
+                          bool planar, std::vector<std::pair<int, double>>& w) {
+  w.clear();
+  double total_angle = 0;
+  auto add = [&](int k, double x) {
+    for (auto& [j, y] : w)
+      if (j == k) {
+        y += x;
+        return;
+      }
+    w.push_back({k, x});
   };
+  for (auto [a, b] : fan) {
+    Eigen::Vector3d pv = pos.row(v).transpose(), pa = pos.row(a).transpose(), pb = pos.row(b).transpose();
+    Eigen::Vector3d da = pa - pv, db = pb - pv;
+    double alpha = planar ? std::atan2(da.x() * db.y() - da.y() * db.x(), da.dot(db))
+                          : std::atan2(da.cross(db).norm(), da.dot(db));
+    total_angle += alpha;
+    double t = std::tan(alpha / 2);
+    add(a, t / da.norm());
+    add(b, t / db.norm());
+  }
+  return total_angle;
+}
+
+// Tutte embedding of the vertices marked in `region` (the others stay where X has them):
+// each region vertex becomes the weighted mean of its ring with the mean value coordinates
+// of the conformal map itself where its ring there is an embedded star (linear precision:
+// the map is reproduced), the surface's own MVC where it is folded (always positive). With
+// a convex fixed outline (the disk's boundary) and positive weights Floater's theorem
+// guarantees an embedding; on a region inside, the map around it plays the outline.
+// Returns the vertices whose weights were replaced, -1 when the solve failed.
+int tutte_repair(const mesh::TriMesh& m, const Fans& fan, mesh::Vertices& X, const std::vector<char>& region) {
+  const int nv = m.num_vertices();
+  std::vector<int> index(nv, -1);
+  int n = 0;
+  for (int v = 0; v < nv; ++v)
+    if (region[v]) index[v] = n++;
+  if (n == 0) return 0;
   std::vector<Eigen::Triplet<double>> trip;
-  Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(nv, 2);
+  Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(n, 2);
   std::vector<std::pair<int, double>> w;
   int replaced = 0;
   for (int v = 0; v < nv; ++v) {
-    if (boundary[v]) {
-      trip.emplace_back(v, v, 1.0);
-      rhs.row(v) = X.row(v).head<2>();
-      continue;
-    }
-    double total = mvc(v, X, true, w);
+    if (index[v] < 0) continue;
+    double total = mean_value_weights(fan[v], v, X, true, w);
     bool good = std::abs(total - 2 * std::numbers::pi) < 1e-9;
     for (auto [k, x] : w) good = good && x > 0 && std::isfinite(x);
     if (!good) {
-      mvc(v, m.V, false, w);  // the surface's own angles: always positive
+      mean_value_weights(fan[v], v, m.V, false, w);
       ++replaced;
     }
     double sum = 0;
     for (auto [k, x] : w) sum += x;
-    trip.emplace_back(v, v, 1.0);
-    for (auto [k, x] : w) trip.emplace_back(v, k, -x / sum);
+    trip.emplace_back(index[v], index[v], 1.0);
+    for (auto [k, x] : w) {
+      if (index[k] >= 0)
+        trip.emplace_back(index[v], index[k], -x / sum);
+      else
+        rhs.row(index[v]) += (x / sum) * X.row(k).head<2>();
+    }
   }
-  Eigen::SparseMatrix<double> A(nv, nv);
+  Eigen::SparseMatrix<double> A(n, n);
   A.setFromTriplets(trip.begin(), trip.end());
   // Sparse LU (UMFPACK, SuiteSparse) of the non-symmetric Tutte matrix.
   Eigen::UmfPackLU<Eigen::SparseMatrix<double>> lu;
@@ -300,25 +333,62 @@ int tutte_repair(const mesh::TriMesh& m, mesh::Vertices& X, const std::vector<ch
   if (lu.info() != Eigen::Success) return -1;
   Eigen::MatrixXd sol = lu.solve(rhs);
   if (!sol.allFinite()) return -1;
-  X.leftCols(2) = sol;
+  for (int v = 0; v < nv; ++v)
+    if (index[v] >= 0) X.row(v).head<2>() = sol.row(index[v]);
   return replaced;
 }
 
-// Planar positions X (#V by 3, z = 0) of `m`: when faces are folded, the Tutte repair is
-// kept if it folds fewer. Returns the vertices whose weights it replaced (0 if unused);
-// `folded` gets the folds left.
+// Planar positions X (#V by 3, z = 0) of `m`: folded faces are repaired by a Tutte
+// embedding of the free vertices within a few rings of them, the region doubling until no
+// fold is left (the last region is every vertex not `fixed`: with a convex fixed outline,
+// Floater's guarantee). A repair is kept only if it folds fewer faces. Returns the vertices
+// whose weights were replaced (0 if unused); `folded` gets the folds left.
 int repair_planar_folds(const mesh::TriMesh& m, mesh::Vertices& X, const std::vector<char>& fixed,
                         int& folded) {
-  folded = quality::measure(m, X, quality::Target::kPlane).flipped_faces;
+  folded = count_planar_folds(m, X);
   if (folded == 0) return 0;
-  mesh::Vertices repaired = X;
-  int replaced = tutte_repair(m, repaired, fixed);
-  if (replaced < 0) return 0;
-  int after = quality::measure(m, repaired, quality::Target::kPlane).flipped_faces;
-  if (after >= folded) return 0;
-  X = std::move(repaired);
-  folded = after;
-  return replaced;
+  const int nv = m.num_vertices();
+  const Fans fan = oriented_fans(m);
+  int replaced_total = 0;
+  for (int rings = 3;; rings *= 2) {
+    // Breadth-first from the corners of the folded faces, `rings` steps, fixed ones excluded.
+    std::vector<int> dist(nv, -1), frontier;
+    for (int f = 0; f < m.num_faces(); ++f)
+      if (face_folded(m, X, f, false))
+        for (int k = 0; k < 3; ++k)
+          if (dist[m.F(f, k)] < 0) {
+            dist[m.F(f, k)] = 0;
+            frontier.push_back(m.F(f, k));
+          }
+    for (size_t q = 0; q < frontier.size(); ++q) {
+      int v = frontier[q];
+      if (dist[v] >= rings) continue;
+      for (auto [a, b] : fan[v])
+        for (int k : {a, b})
+          if (dist[k] < 0) {
+            dist[k] = dist[v] + 1;
+            frontier.push_back(k);
+          }
+    }
+    std::vector<char> region(nv, 0);
+    bool everything = true;
+    for (int v = 0; v < nv; ++v) {
+      region[v] = dist[v] >= 0 && !fixed[v];
+      everything = everything && (region[v] || fixed[v]);
+    }
+    mesh::Vertices trial = X;
+    int replaced = tutte_repair(m, fan, trial, region);
+    if (replaced >= 0) {
+      int after = count_planar_folds(m, trial);
+      if (after < folded) {
+        X = std::move(trial);
+        folded = after;
+        replaced_total += replaced;
+      }
+    }
+    if (folded == 0 || everything) break;
+  }
+  return replaced_total;
 }
 
 }  // namespace

@@ -92,14 +92,14 @@ double IntrinsicTriangulation::length(int h, const Eigen::VectorXd& u) const {
   return eta_[he_edge_[h]] * std::exp(0.5 * (u[he_origin_[h]] + u[he_origin_[he_next_[h]]]));
 }
 
-bool IntrinsicTriangulation::is_delaunay(int h, const Eigen::VectorXd& u) const {
+bool IntrinsicTriangulation::is_delaunay(int h, const Eigen::VectorXd& s) const {
   int t = he_twin_[h];
   if (t < 0) return true;
   // Face A = (h, h1, h2), opposite corner at origin(h2); face B = (t, t1, t2), at origin(t2).
   int h1 = he_next_[h], h2 = he_next_[h1], t1 = he_next_[t], t2 = he_next_[t1];
-  double l = length(h, u);
-  double cot_a = corner_cot(l, length(h1, u), length(h2, u));
-  double cot_b = corner_cot(l, length(t1, u), length(t2, u));
+  double l = scaled_length(h, s);
+  double cot_a = corner_cot(l, scaled_length(h1, s), scaled_length(h2, s));
+  double cot_b = corner_cot(l, scaled_length(t1, s), scaled_length(t2, s));
   // Def. 3.3: theta_k + theta_l <= pi  <=>  cot theta_k + cot theta_l >= 0. The small
   // tolerance keeps nearly cocircular quadrilaterals from flipping back and forth.
   // Relative to the cotangents themselves: slivers have cotangents of 1e4 whose sum carries
@@ -175,21 +175,29 @@ int IntrinsicTriangulation::split_boundary_edge(int h, Eigen::VectorXd& u) {
   return m;
 }
 
-bool IntrinsicTriangulation::all_faces_valid(const Eigen::VectorXd& u) const {
+bool IntrinsicTriangulation::all_faces_valid(const Eigen::VectorXd& s) const {
+  int invalid = 0;
+#pragma omp parallel for schedule(static) reduction(+ : invalid)
   for (int f = 0; f < num_faces(); ++f) {
     int h0 = face_he_[f], h1 = he_next_[h0], h2 = he_next_[h1];
-    double a = length(h0, u), b = length(h1, u), c = length(h2, u);
-    if (!(a < b + c && b < a + c && c < a + b)) return false;
+    double a = scaled_length(h0, s), b = scaled_length(h1, s), c = scaled_length(h2, s);
+    invalid += !(a < b + c && b < a + c && c < a + b);
   }
-  return true;
+  return invalid == 0;
 }
 
 template <typename NewLength>
 int IntrinsicTriangulation::flip_to_delaunay(const Eigen::VectorXd& u, NewLength new_eta) {
+  const Eigen::VectorXd s = half_exp(u);
+  // The first pass over every edge runs in parallel; the flips and the edges they affect
+  // are then handled one at a time.
+  const int ne = num_edges();
+  std::vector<char> queued(ne, 0);
+#pragma omp parallel for schedule(static)
+  for (int e = 0; e < ne; ++e) queued[e] = he_twin_[edge_he_[e]] >= 0 && !is_delaunay(edge_he_[e], s);
   std::vector<int> stack;
-  std::vector<char> queued(eta_.size(), 1);
-  stack.reserve(eta_.size());
-  for (int e = 0; e < num_edges(); ++e) stack.push_back(e);
+  for (int e = ne - 1; e >= 0; --e)
+    if (queued[e]) stack.push_back(e);
   int flips = 0;
   const long cap = 100L * static_cast<long>(eta_.size()) + 1000;
   while (!stack.empty()) {
@@ -197,7 +205,7 @@ int IntrinsicTriangulation::flip_to_delaunay(const Eigen::VectorXd& u, NewLength
     stack.pop_back();
     queued[e] = 0;
     int h = edge_he_[e];
-    if (he_twin_[h] < 0 || is_delaunay(h, u)) continue;
+    if (he_twin_[h] < 0 || is_delaunay(h, s)) continue;
     int a1 = he_next_[h], a2 = he_next_[a1], t1 = he_next_[he_twin_[h]], t2 = he_next_[t1];
     flip(h, new_eta(h, a1, a2, t1, t2));
     // A metric far from the current one can need very many flips (or round-off can make
@@ -212,7 +220,7 @@ int IntrinsicTriangulation::flip_to_delaunay(const Eigen::VectorXd& u, NewLength
       }
     }
   }
-  return all_faces_valid(u) ? flips : -1;
+  return all_faces_valid(s) ? flips : -1;
 }
 
 int IntrinsicTriangulation::make_delaunay(const Eigen::VectorXd& u) {

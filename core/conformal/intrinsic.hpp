@@ -38,11 +38,17 @@ class IntrinsicTriangulation {
   int edge(int h) const { return he_edge_[h]; }
   int face(int h) const { return he_face_[h]; }
   int face_halfedge(int f) const { return face_he_[f]; }
+  int edge_halfedge(int e) const { return edge_he_[e]; }
   bool on_boundary(int h) const { return he_twin_[h] < 0; }
   const std::vector<char>& boundary_vertex() const { return boundary_vertex_; }
 
   /// Current length of half-edge h's edge for conformal factors u (#V).
   double length(int h, const Eigen::VectorXd& u) const;
+  /// The same from s = half_exp(u): eta_ij s_i s_j, one multiplication instead of an exp
+  /// (the loops over every face or edge compute s once).
+  double scaled_length(int h, const Eigen::VectorXd& s) const {
+    return eta_[he_edge_[h]] * s[he_origin_[h]] * s[he_origin_[he_next_[h]]];
+  }
 
   /// Flips interior edges until every one is Delaunay for the metric given by u (opposite
   /// angles summing to at most pi), using Ptolemy flips. Returns the number of flips; -1
@@ -68,10 +74,10 @@ class IntrinsicTriangulation {
   void flip(int h, double new_eta);
   // Makes h0 -> h1 -> h2 the half-edge cycle of face f.
   void link_face(int f, int h0, int h1, int h2);
-  bool is_delaunay(int h, const Eigen::VectorXd& u) const;
+  bool is_delaunay(int h, const Eigen::VectorXd& s) const;
   template <typename NewLength>
   int flip_to_delaunay(const Eigen::VectorXd& u, NewLength new_eta);
-  bool all_faces_valid(const Eigen::VectorXd& u) const;
+  bool all_faces_valid(const Eigen::VectorXd& s) const;
 
   int nv_ = 0;
   std::vector<int> he_next_, he_twin_, he_origin_, he_edge_, he_face_;
@@ -81,6 +87,9 @@ class IntrinsicTriangulation {
   std::vector<char> boundary_vertex_;
   long total_flips_ = 0;
 };
+
+/// s_i = exp(u_i / 2) per vertex: the current length of edge ij is eta_ij s_i s_j.
+inline Eigen::VectorXd half_exp(const Eigen::VectorXd& u) { return (0.5 * u.array()).exp().matrix(); }
 
 /// Angle opposite side a in a triangle of sides a, b, c; pi when a >= b + c, 0 when b or c
 /// is too long. Stable for needle triangles (the half-angle formula of Kahan).

@@ -10,80 +10,120 @@
 
 #include "common/check.hpp"
 #include "common/error.hpp"
+#include "numeric/krylov.hpp"
 
 namespace brenier::conformal {
 
 Eigen::VectorXd curvature(const IntrinsicTriangulation& T, const Eigen::VectorXd& u) {
-  const int nv = T.num_vertices();
+  const int nv = T.num_vertices(), nf = T.num_faces();
+  const Eigen::VectorXd s = half_exp(u);
+  // The corner angles (the costly part: one atan each) in parallel, then summed per vertex.
+  std::vector<double> angle(3 * static_cast<size_t>(nf));
+#pragma omp parallel for schedule(static)
+  for (int f = 0; f < nf; ++f) {
+    int h0 = T.face_halfedge(f), h1 = T.next(h0), h2 = T.next(h1);
+    double l0 = T.scaled_length(h0, s), l1 = T.scaled_length(h1, s), l2 = T.scaled_length(h2, s);
+    // The angle at origin(h) is opposite the edge of next(h).
+    angle[3 * f] = corner_angle(l1, l2, l0);
+    angle[3 * f + 1] = corner_angle(l2, l0, l1);
+    angle[3 * f + 2] = corner_angle(l0, l1, l2);
+  }
   Eigen::VectorXd K(nv);
   const auto& bnd = T.boundary_vertex();
   for (int v = 0; v < nv; ++v) K[v] = bnd[v] ? std::numbers::pi : 2 * std::numbers::pi;
-  for (int f = 0; f < T.num_faces(); ++f) {
-    int h0 = T.face_halfedge(f), h1 = T.next(h0), h2 = T.next(h1);
-    double l0 = T.length(h0, u), l1 = T.length(h1, u), l2 = T.length(h2, u);
-    // The angle at origin(h) is opposite the edge of next(h).
-    K[T.origin(h0)] -= corner_angle(l1, l2, l0);
-    K[T.origin(h1)] -= corner_angle(l2, l0, l1);
-    K[T.origin(h2)] -= corner_angle(l0, l1, l2);
+  for (int f = 0; f < nf; ++f) {
+    int h = T.face_halfedge(f);
+    for (int k = 0; k < 3; ++k, h = T.next(h)) K[T.origin(h)] -= angle[3 * f + k];
   }
   return K;
 }
 
-Eigen::SparseMatrix<double> curvature_jacobian(const IntrinsicTriangulation& T,
-                                               const Eigen::VectorXd& u) {
-  const int nv = T.num_vertices();
-  std::vector<Eigen::Triplet<double>> trip;
-  trip.reserve(static_cast<size_t>(T.num_halfedges()) * 4);
-  for (int f = 0; f < T.num_faces(); ++f) {
+namespace {
+
+// Cotangent weight of every edge (eq. 3.3): (cot a + cot b) / 2 over its opposite corners,
+// one cot for a boundary edge.
+std::vector<double> edge_weights(const IntrinsicTriangulation& T, const Eigen::VectorXd& u) {
+  const int nf = T.num_faces();
+  const Eigen::VectorXd s = half_exp(u);
+  std::vector<double> half(3 * static_cast<size_t>(nf));  // per half-edge, its face's share
+#pragma omp parallel for schedule(static)
+  for (int f = 0; f < nf; ++f) {
     int h[3] = {T.face_halfedge(f), 0, 0};
     h[1] = T.next(h[0]);
     h[2] = T.next(h[1]);
-    double l[3] = {T.length(h[0], u), T.length(h[1], u), T.length(h[2], u)};
-    for (int k = 0; k < 3; ++k) {
-      // Edge of h[k] joins origin(h[k]) and origin(h[k+1]); its opposite corner's cot.
-      double w = 0.5 * corner_cot(l[k], l[(k + 1) % 3], l[(k + 2) % 3]);
-      int i = T.origin(h[k]), j = T.origin(h[(k + 1) % 3]);
-      trip.emplace_back(i, j, -w);
-      trip.emplace_back(j, i, -w);
-      trip.emplace_back(i, i, w);
-      trip.emplace_back(j, j, w);
+    double l[3] = {T.scaled_length(h[0], s), T.scaled_length(h[1], s), T.scaled_length(h[2], s)};
+    for (int k = 0; k < 3; ++k) half[3 * f + k] = 0.5 * corner_cot(l[k], l[(k + 1) % 3], l[(k + 2) % 3]);
+  }
+  std::vector<double> w(T.num_edges(), 0.0);
+  for (int f = 0; f < nf; ++f) {
+    int h = T.face_halfedge(f);
+    for (int k = 0; k < 3; ++k, h = T.next(h)) w[T.edge(h)] += half[3 * f + k];
+  }
+  return w;
+}
+
+// The Newton matrix on the free vertices (index[i] >= 0, renumbered): H - M, assembled
+// straight from the edge weights, without the fixed rows and columns.
+Eigen::SparseMatrix<double> newton_matrix(const IntrinsicTriangulation& T, const Eigen::VectorXd& u,
+                                          const std::vector<int>& index, int nfree,
+                                          const std::vector<Eigen::Triplet<double>>& M) {
+  const std::vector<double> w = edge_weights(T, u);
+  std::vector<Eigen::Triplet<double>> trip;
+  trip.reserve(2 * w.size() + nfree + M.size());
+  Eigen::VectorXd diag = Eigen::VectorXd::Zero(nfree);
+  for (int e = 0; e < T.num_edges(); ++e) {
+    // Any half-edge of the edge names its two ends.
+    int h = T.edge_halfedge(e);
+    int i = index[T.origin(h)], j = index[T.origin(T.next(h))];
+    if (i >= 0) diag[i] += w[e];
+    if (j >= 0) diag[j] += w[e];
+    if (i >= 0 && j >= 0) {
+      trip.emplace_back(i, j, -w[e]);
+      trip.emplace_back(j, i, -w[e]);
     }
   }
-  Eigen::SparseMatrix<double> H(nv, nv);
-  H.setFromTriplets(trip.begin(), trip.end());
-  return H;
+  for (int i = 0; i < nfree; ++i) trip.emplace_back(i, i, diag[i]);
+  for (const auto& t : M) {
+    int i = index[t.row()], j = index[t.col()];
+    if (i >= 0 && j >= 0) trip.emplace_back(i, j, -t.value());
+  }
+  Eigen::SparseMatrix<double> J(nfree, nfree);
+  J.setFromTriplets(trip.begin(), trip.end());
+  return J;
+}
+
+}  // namespace
+
+Eigen::SparseMatrix<double> curvature_jacobian(const IntrinsicTriangulation& T,
+                                               const Eigen::VectorXd& u) {
+  std::vector<int> all(T.num_vertices());
+  for (int i = 0; i < T.num_vertices(); ++i) all[i] = i;
+  return newton_matrix(T, u, all, T.num_vertices(), {});
 }
 
 namespace {
 
-// Keeps the rows and columns of the free vertices (index[i] >= 0), renumbered.
-Eigen::SparseMatrix<double> restrict_free(const Eigen::SparseMatrix<double>& H,
-                                          const std::vector<int>& index, int nfree) {
-  std::vector<Eigen::Triplet<double>> trip;
-  trip.reserve(H.nonZeros());
-  for (int c = 0; c < H.outerSize(); ++c)
-    for (Eigen::SparseMatrix<double>::InnerIterator it(H, c); it; ++it) {
-      int r = index[it.row()], k = index[it.col()];
-      if (r >= 0 && k >= 0) trip.emplace_back(r, k, it.value());
-    }
-  Eigen::SparseMatrix<double> R(nfree, nfree);
-  R.setFromTriplets(trip.begin(), trip.end());
-  return R;
-}
-
-// The kept factorization of the Newton system: LDL^T of J with J + c w w^T handled by
-// Sherman-Morrison (aw = J^{-1} w), or Cholesky of H alone.
-struct Factor {
-  bool ready = false;
-  bool use_ldlt = true;
-  Eigen::VectorXd w, aw;
-  double c = 0;
-  template <typename LDLT, typename LLT>
-  Eigen::VectorXd solve(const Eigen::VectorXd& b, LDLT& ldlt, LLT& llt) const {
-    if (!use_ldlt) return llt.solve(b);
-    Eigen::VectorXd x = ldlt.solve(b);
-    if (c != 0) x -= aw * (c * w.dot(x) / (1.0 + c * w.dot(aw)));
-    return x;
+// The preconditioner of the Newton systems: a Cholesky factorization of the cotangent
+// Laplacian H on the free vertices (positive definite: Delaunay weights, one vertex pinned),
+// kept across iterations. Supernodal LL^T (BLAS-3; with OpenBLAS about twice as fast as a
+// simplicial LDL^T of the indefinite J at 133K vertices); LDL^T if round-off defeats LL^T.
+struct Preconditioner {
+  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt;
+  Eigen::CholmodSimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
+  bool use_llt = true, ready = false;
+  Preconditioner() {
+    llt.cholmod().print = 0;  // CHOLMOD's own messages off; failures are checked via info()
+    ldlt.cholmod().print = 0;
+  }
+  bool factor(const Eigen::SparseMatrix<double>& H) {
+    llt.compute(H);
+    use_llt = llt.info() == Eigen::Success;
+    if (!use_llt) ldlt.compute(H);
+    ready = use_llt || ldlt.info() == Eigen::Success;
+    return ready;
+  }
+  Eigen::VectorXd solve(const Eigen::VectorXd& b) const {
+    return use_llt ? Eigen::VectorXd(llt.solve(b)) : Eigen::VectorXd(ldlt.solve(b));
   }
 };
 
@@ -116,19 +156,12 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
   Eigen::VectorXd g = residual(tg, r.u);
   r.residual = g.cwiseAbs().maxCoeff();
 
-  // H - M is symmetric but may be indefinite (M lowers the boundary block), so it is factored
-  // LDL^T; CHOLMOD's own messages are silenced, failures are checked through info().
-  Eigen::CholmodSimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
-  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt;
-  ldlt.cholmod().print = 0;
-  llt.cholmod().print = 0;
+  Preconditioner pre;
   std::vector<double> history;
-  Factor factor;
   for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
     if (r.residual <= opt.tolerance) break;
     // Newton step (eq. 3.4, Alg. 1 line 8, with the targets' own derivative):
     // (H - M + c w w^T) du = Kbar - K on the free vertices, du = 0 on the fixed ones.
-    Eigen::SparseMatrix<double> Hfull = curvature_jacobian(T, r.u);
     auto reduce = [&](const Eigen::VectorXd& x) {
       Eigen::VectorXd y(nfree);
       for (int i = 0; i < nv; ++i)
@@ -136,72 +169,53 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
       return y;
     };
     // The system J d = g with J = H - M + c w w^T (H alone when the targets do not depend on
-    // u). A factorization costs far more than a solve (0.6-1.5 s against 0.03 s at 133K
-    // vertices), so the last one is kept and reused as a preconditioner: refinement
-    // d <- d + P^{-1} (g - J d) with P the stale J, to the accuracy inexact Newton needs
-    // (Eisenstat-Walker: relative residual below min(1e-2, |g|)). Only when that stalls is
-    // J factored afresh (LDL^T: J can be indefinite, M lowers the boundary block; if even
-    // that fails, H's Cholesky), keeping Newton's quadratic convergence at a fraction of
-    // the factorizations.
-    Eigen::SparseMatrix<double> J;
-    Eigen::VectorXd wr;
-    double c = 0;
-    if (!tg.M.empty()) {
-      Eigen::SparseMatrix<double> M(nv, nv);
-      M.setFromTriplets(tg.M.begin(), tg.M.end());
-      J = restrict_free(Eigen::SparseMatrix<double>(Hfull - M), index, nfree);
-      wr = reduce(tg.w);
-      c = tg.c;
-    } else {
-      J = restrict_free(Hfull, index, nfree);
-      wr = Eigen::VectorXd::Zero(nfree);
-    }
+    // u) is solved by GMRES preconditioned with a Cholesky factor of H, to the accuracy
+    // inexact Newton needs (Eisenstat-Walker: |g - J d| <= min(1e-2, max|g|) |g|).
+    // A factorization costs far more than a solve (0.5-0.9 s against 0.03 s at 133K
+    // vertices), so the factor is kept and reused while GMRES converges with it within a
+    // few dozen iterations (the metric changes little between Newton steps); otherwise H is
+    // factored afresh at the current metric. M has the rank of the boundary, so a fresh
+    // factor of H needs a handful of iterations even where J is indefinite. Should even that
+    // fail, J itself is factored (LDL^T) with the rank-one term by Sherman-Morrison.
+    const Eigen::SparseMatrix<double> J = newton_matrix(T, r.u, index, nfree, tg.M);
+    const Eigen::VectorXd wr = tg.M.empty() ? Eigen::VectorXd::Zero(nfree) : reduce(tg.w);
+    const double c = tg.M.empty() ? 0.0 : tg.c;
     auto apply = [&](const Eigen::VectorXd& x) {
       Eigen::VectorXd y = J * x;
       if (c != 0) y += c * wr.dot(x) * wr;
       return y;
     };
+    auto precondition = [&](const Eigen::VectorXd& x) { return pre.solve(x); };
     const Eigen::VectorXd gr = reduce(g);
+    // Forcing term min(1e-2, max|g|): quadratic convergence, and the last step usually lands
+    // far below the tolerance (the map is then exact to round-off where it can be).
+    const double eta = std::clamp(g.cwiseAbs().maxCoeff(), 1e-12, 1e-2);
     Eigen::VectorXd d;
-    bool solved = false;
-    // Near the solution a small linear residual no longer guarantees an accurate direction
-    // (J is nearly singular along the scaling mode), so the last steps use a fresh factor.
-    if (factor.ready && g.cwiseAbs().maxCoeff() > 1e-5) {
-      const double eta = std::clamp(g.cwiseAbs().maxCoeff(), 1e-10, 1e-2);
-      d = factor.solve(gr, ldlt, llt);
-      double prev = std::numeric_limits<double>::infinity();
-      for (int k = 0; k < 30 && d.allFinite(); ++k) {
-        Eigen::VectorXd res = gr - apply(d);
-        double rn = res.norm();
-        if (rn <= eta * gr.norm()) {
-          solved = true;
-          break;
-        }
-        if (!(rn < 0.7 * prev)) break;  // contracting too slowly: refactor
-        prev = rn;
-        d += factor.solve(res, ldlt, llt);
-      }
+    numeric::KrylovResult kr;
+    for (int attempt = 0; attempt < 2 && !kr.converged; ++attempt) {
+      const bool fresh = !pre.ready || attempt > 0;
+      if (fresh && !pre.factor(newton_matrix(T, r.u, index, nfree, {}))) break;
+      d = Eigen::VectorXd::Zero(nfree);
+      kr = numeric::gmres(apply, precondition, gr, d, eta, 40);
+      if (fresh) break;  // a fresh factor did its best
     }
-    if (!solved) {
-      factor.ready = false;
+    if (!kr.converged) {
+      Eigen::CholmodSimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
+      ldlt.cholmod().print = 0;
       ldlt.compute(J);
+      Eigen::VectorXd exact;
       if (ldlt.info() == Eigen::Success) {
-        factor.use_ldlt = true;
-        factor.w = wr;
-        factor.c = c;
-        factor.aw = c != 0 ? Eigen::VectorXd(ldlt.solve(wr)) : Eigen::VectorXd();
-        factor.ready = factor.aw.allFinite();
+        exact = ldlt.solve(gr);
+        if (c != 0) {
+          Eigen::VectorXd aw = ldlt.solve(wr);
+          exact -= aw * (c * wr.dot(exact) / (1.0 + c * wr.dot(aw)));
+        }
       }
-      if (!factor.ready) {
-        llt.compute(restrict_free(Hfull, index, nfree));
-        if (llt.info() != Eigen::Success)
-          fail(ErrorCode::kNotConverged, "the Yamabe Hessian could not be factored at iteration " +
-                                             std::to_string(r.iterations));
-        factor.use_ldlt = false;
-        factor.c = 0;
-        factor.ready = true;
-      }
-      d = factor.solve(gr, ldlt, llt);
+      if (exact.size() == nfree && exact.allFinite())
+        d = std::move(exact);
+      else if (!(d.size() == nfree && d.allFinite() && kr.relative_residual < 1))
+        fail(ErrorCode::kNotConverged, "the Yamabe Newton system could not be solved at iteration " +
+                                           std::to_string(r.iterations));
     }
     Eigen::VectorXd du = Eigen::VectorXd::Zero(nv);
     for (int i = 0; i < nv; ++i)

@@ -56,11 +56,12 @@ Eigen::SparseMatrix<double> curvature_jacobian(const IntrinsicTriangulation& T,
                                                const Eigen::VectorXd& u);
 
 /// Newton's method for K(u) = Kbar(u) starting from u0 (#V), flipping T to Delaunay at every
-/// step: (H - dKbar/du) du = Kbar - K on the free vertices, solved by sparse Cholesky
-/// (CHOLMOD) with the `fixed` vertices (#V mask; at least one, since the constants are H's
-/// null space) keeping their u0 (Dirichlet), and the rank-one part of dKbar/du by
-/// Sherman-Morrison; where H - M is not positive definite, H alone is used. Steps are halved
-/// until |Kbar - K| decreases and every triangle is valid.
+/// step: (H - dKbar/du) du = Kbar - K on the free vertices, with the `fixed` vertices (#V
+/// mask; at least one, since the constants are H's null space) keeping their u0 (Dirichlet).
+/// Each system is solved by GMRES preconditioned with a sparse Cholesky factor of H (CHOLMOD
+/// supernodal), kept across iterations while it serves; J itself (LDL^T, rank-one part by
+/// Sherman-Morrison) only if GMRES fails. Steps are halved until |Kbar - K| decreases and
+/// every triangle is valid.
 YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& target,
                           const Eigen::VectorXd& u0, const std::vector<char>& fixed,
                           const YamabeOptions& options);

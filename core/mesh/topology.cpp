@@ -28,18 +28,30 @@ struct HalfEdgeKey {
   int from, to;
 };
 
+// Ordered by (a, b): a counting sort on a (linear), then each bucket -- a vertex's few
+// higher neighbours -- by insertion sort; several times faster than a comparison sort of
+// every half-edge on large meshes.
 std::vector<HalfEdgeKey> sorted_half_edges(const Faces& F) {
-  std::vector<HalfEdgeKey> h;
-  h.reserve(static_cast<size_t>(F.rows()) * 3);
+  int nv = 0;
+  for (int f = 0; f < F.rows(); ++f) nv = std::max({nv, F(f, 0) + 1, F(f, 1) + 1, F(f, 2) + 1});
+  std::vector<int> start(static_cast<size_t>(nv) + 1, 0);
+  for (int f = 0; f < F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) ++start[std::min(F(f, k), F(f, (k + 1) % 3)) + 1];
+  for (int v = 0; v < nv; ++v) start[v + 1] += start[v];
+  std::vector<HalfEdgeKey> h(static_cast<size_t>(F.rows()) * 3);
+  std::vector<int> fill(start.begin(), start.end() - 1);
   for (int f = 0; f < F.rows(); ++f)
     for (int k = 0; k < 3; ++k) {
       int u = F(f, k), v = F(f, (k + 1) % 3);
-      h.push_back({std::min(u, v), std::max(u, v), u, v});
+      h[fill[std::min(u, v)]++] = {std::min(u, v), std::max(u, v), u, v};
     }
-  std::sort(h.begin(), h.end(),
-            [](const HalfEdgeKey& x, const HalfEdgeKey& y) { return std::tie(x.a, x.b) < std::tie(y.a, y.b); });
+  for (int v = 0; v < nv; ++v)
+    for (int i = start[v] + 1; i < start[v + 1]; ++i)
+      for (int j = i; j > start[v] && h[j].b < h[j - 1].b; --j) std::swap(h[j], h[j - 1]);
   return h;
 }
+
+std::vector<std::vector<int>> loops_from(const std::vector<HalfEdgeKey>& h);
 
 }  // namespace
 
@@ -75,7 +87,7 @@ Topology compute_topology(const TriMesh& mesh) {
   for (int v = 0; v < t.vertices; ++v) t.components += find(v) == v;
 
   if (t.manifold) {
-    t.boundary_loops = static_cast<int>(boundary_loops(mesh).size());
+    t.boundary_loops = static_cast<int>(loops_from(h).size());
     int twice_genus = 2 * t.components - t.euler - t.boundary_loops;
     t.genus = twice_genus >= 0 && twice_genus % 2 == 0 ? twice_genus / 2 : -1;
   } else {
@@ -107,8 +119,11 @@ Topology compute_topology(const TriMesh& mesh) {
   return t;
 }
 
-std::vector<std::vector<int>> boundary_loops(const TriMesh& mesh) {
-  auto h = sorted_half_edges(mesh.F);
+std::vector<std::vector<int>> boundary_loops(const TriMesh& mesh) { return loops_from(sorted_half_edges(mesh.F)); }
+
+namespace {
+
+std::vector<std::vector<int>> loops_from(const std::vector<HalfEdgeKey>& h) {
   // Boundary half-edges keyed by their start vertex. At a manifold boundary vertex exactly
   // one leaves; at a vertex where two boundary loops touch, several do, and each walk takes
   // the next unused one.
@@ -149,6 +164,8 @@ std::vector<std::vector<int>> boundary_loops(const TriMesh& mesh) {
                    [](const auto& x, const auto& y) { return x.size() > y.size(); });
   return loops;
 }
+
+}  // namespace
 
 std::string domain_mismatch(const Topology& t, Domain d) {
   auto describe = [&]() {
