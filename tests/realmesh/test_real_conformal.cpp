@@ -5,7 +5,6 @@
 
 #include <algorithm>
 #include <filesystem>
-#include <set>
 
 #include "common/error.hpp"
 #include "conformal/conformal_map.hpp"
@@ -39,10 +38,6 @@ std::vector<Case> meshes_of_class(mesh::MeshClass cls) {
   return out;
 }
 
-// Known exception, kept explicit so a fix shows up here: part.off (a 175-vertex CAD part)
-// keeps one folded face on the sphere with each of the three punctures tried.
-const std::set<std::string> kKnownSphereFolds = {"part.off"};
-
 }  // namespace
 
 TEST(RealConformal, EveryDiskMeshMapsOntoTheDiskUnfolded) {
@@ -68,12 +63,8 @@ TEST(RealConformal, EverySphereMeshMapsOntoTheSphereUnfolded) {
     SCOPED_TRACE(c.name);
     conformal::ConformalMap map = conformal::map_to_sphere(c.mesh);
     EXPECT_TRUE(map.converged) << map.max_curvature_error;
-    int folds = quality::measure(c.mesh, map.positions, quality::Target::kSphere).flipped_faces;
-    if (kKnownSphereFolds.count(c.name)) {
-      EXPECT_LE(folds, 1);
-    } else {
-      EXPECT_EQ(folds, 0);
-    }
+    EXPECT_EQ(quality::measure(c.mesh, map.positions, quality::Target::kSphere).flipped_faces, 0);
+    EXPECT_EQ(map.folded_faces, 0);
     EXPECT_LT((map.positions.rowwise().norm().array() - 1.0).abs().maxCoeff(), 1e-12);
   }
 }
