@@ -13,10 +13,14 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <map>
+#include <stdexcept>
 #include <string>
 
 #include "conformal/conformal_map.hpp"
+#include "mesh/geometry.hpp"
 #include "mesh/shapes.hpp"
+#include "mesh/topology.hpp"
 #include "mesh/validate.hpp"
 #include "quality/quality.hpp"
 
@@ -80,6 +84,80 @@ bool cgal_dcm(const mesh::TriMesh& m, mesh::Vertices& out, double& secs) {
   return true;
 }
 
+// A real-mesh disk of at least `count` vertices cut from the disk `m`: the faces reached first
+// by a breadth-first search over shared edges from the face at the default centre vertex;
+// the pockets the search leaves at its rim (unreached faces not connected to the rest of
+// the unreached ones) are filled, so the patch has a single boundary loop.
+mesh::TriMesh patch(const mesh::TriMesh& m, int count) {
+  const int nf = m.num_faces();
+  std::map<std::pair<int, int>, std::vector<int>> edge_faces;
+  for (int f = 0; f < nf; ++f)
+    for (int k = 0; k < 3; ++k) {
+      int a = m.F(f, k), b = m.F(f, (k + 1) % 3);
+      edge_faces[{std::min(a, b), std::max(a, b)}].push_back(f);
+    }
+  std::vector<std::vector<int>> nbr(nf);
+  for (const auto& [e, fs] : edge_faces)
+    if (fs.size() == 2) {
+      nbr[fs[0]].push_back(fs[1]);
+      nbr[fs[1]].push_back(fs[0]);
+    }
+  const int centre = mesh::default_hole_vertex(m);
+  int seed = 0;
+  for (int f = 0; f < nf; ++f)
+    if (m.F(f, 0) == centre || m.F(f, 1) == centre || m.F(f, 2) == centre) seed = f;
+  std::vector<char> in(nf, 0), seen_vertex(m.num_vertices(), 0);
+  std::vector<int> queue{seed};
+  in[seed] = 1;
+  int vertices = 0;
+  for (size_t q = 0; q < queue.size() && vertices < count; ++q) {
+    for (int k = 0; k < 3; ++k) vertices += !seen_vertex[m.F(queue[q], k)]++;
+    for (int g : nbr[queue[q]])
+      if (!in[g]) {
+        in[g] = 1;
+        queue.push_back(g);
+      }
+  }
+  // Components of the faces left out; all but the largest are pockets.
+  std::vector<int> comp(nf, -1), size;
+  for (int f = 0; f < nf; ++f) {
+    if (in[f] || comp[f] >= 0) continue;
+    const int c = static_cast<int>(size.size());
+    size.push_back(0);
+    std::vector<int> stack{f};
+    comp[f] = c;
+    while (!stack.empty()) {
+      int g = stack.back();
+      stack.pop_back();
+      ++size[c];
+      for (int h : nbr[g])
+        if (!in[h] && comp[h] < 0) {
+          comp[h] = c;
+          stack.push_back(h);
+        }
+    }
+  }
+  const int outer = static_cast<int>(std::max_element(size.begin(), size.end()) - size.begin());
+  std::vector<int> faces, id(m.num_vertices(), -1);
+  for (int f = 0; f < nf; ++f)
+    if (in[f] || comp[f] != outer) faces.push_back(f);
+  mesh::TriMesh out;
+  out.F.resize(static_cast<int>(faces.size()), 3);
+  int n = 0;
+  for (size_t i = 0; i < faces.size(); ++i)
+    for (int k = 0; k < 3; ++k) {
+      int& v = id[m.F(faces[i], k)];
+      if (v < 0) v = n++;
+      out.F(static_cast<int>(i), k) = v;
+    }
+  out.V.resize(n, 3);
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if (id[v] >= 0) out.V.row(id[v]) = m.V.row(v);
+  if (mesh::validate(out).has_errors() || mesh::compute_topology(out).mesh_class != mesh::MeshClass::kDisk)
+    throw std::runtime_error(std::string("the patch is not a valid disk: ") + (mesh::validate(out).has_errors() ? mesh::validate(out).first_error()->message : std::to_string(mesh::compute_topology(out).boundary_loops) + " loops"));
+  return out;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -96,6 +174,10 @@ int main(int argc, char** argv) {
   {
     mesh::TriMesh big = mesh::subdivide_midpoint(mesh::subdivide_midpoint(mesh::load_mesh(data + "/lion-head.off").mesh));
     disks.push_back({"lion-head x16 (midpoint subdivided twice)", big});
+  }
+  {
+    mesh::TriMesh big = mesh::subdivide_midpoint(mesh::subdivide_midpoint(mesh::load_mesh(data + "/mannequin-devil.off").mesh));
+    disks.push_back({"mannequin-devil x16, a patch around its centre", patch(big, 87000)});
   }
   for (const auto& c : disks) {
     conformal::ConformalMap map;

@@ -95,8 +95,20 @@ int run_map(const MapOptions& o) {
   if (q.flipped_faces > 0 && !o.allow_flips) {
     std::string list;
     for (size_t i = 0; i < q.flipped.size() && i < 8; ++i) list += (i ? ", " : "") + std::to_string(q.flipped[i]);
+    // Say why when the first folded face is too small for doubles: a region the conformal
+    // map compresses below ~1e-8 has cross products at round-off level (long protrusions).
+    const int f = q.flipped.front();
+    double size = 0;
+    for (int k = 0; k < 3; ++k)
+      size = std::max(size, (map.positions.row(surface.F(f, k)) - map.positions.row(surface.F(f, (k + 1) % 3))).norm());
+    std::string why;
+    if (size < 1e-8) {
+      char buf[160];
+      std::snprintf(buf, sizeof buf, "; face %d is %.1e across in the image: the map compresses it below double precision", f, size);
+      why = buf;
+    }
     fail(ErrorCode::kNotConverged, o.input.path + ": the map folds " + std::to_string(q.flipped_faces) +
-                                       " faces (first: " + list + "); pass --allow-flips to write it anyway");
+                                       " faces (first: " + list + ")" + why + "; pass --allow-flips to write it anyway");
   }
 
   if (!o.output.empty()) {
