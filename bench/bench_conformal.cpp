@@ -158,6 +158,35 @@ mesh::TriMesh patch(const mesh::TriMesh& m, int count) {
   return out;
 }
 
+// The disk `m` with its outermost ring of faces removed, again and again, until at most
+// `count` vertices remain (a smaller disk of the same mesh, with the same triangle shapes).
+mesh::TriMesh peel(mesh::TriMesh m, int count) {
+  while (m.num_vertices() > count) {
+    std::vector<char> rim(m.num_vertices(), 0);
+    for (const auto& loop : mesh::boundary_loops(m))
+      for (int v : loop) rim[v] = 1;
+    std::vector<int> faces, id(m.num_vertices(), -1);
+    for (int f = 0; f < m.num_faces(); ++f)
+      if (!rim[m.F(f, 0)] && !rim[m.F(f, 1)] && !rim[m.F(f, 2)]) faces.push_back(f);
+    mesh::TriMesh out;
+    out.F.resize(static_cast<int>(faces.size()), 3);
+    int n = 0;
+    for (size_t i = 0; i < faces.size(); ++i)
+      for (int k = 0; k < 3; ++k) {
+        int& v = id[m.F(faces[i], k)];
+        if (v < 0) v = n++;
+        out.F(static_cast<int>(i), k) = v;
+      }
+    out.V.resize(n, 3);
+    for (int v = 0; v < m.num_vertices(); ++v)
+      if (id[v] >= 0) out.V.row(id[v]) = m.V.row(v);
+    m = std::move(out);
+  }
+  if (mesh::validate(m).has_errors() || mesh::compute_topology(m).mesh_class != mesh::MeshClass::kDisk)
+    throw std::runtime_error("the peeled mesh is not a valid disk");
+  return m;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -174,6 +203,7 @@ int main(int argc, char** argv) {
   {
     mesh::TriMesh big = mesh::subdivide_midpoint(mesh::subdivide_midpoint(mesh::load_mesh(data + "/lion-head.off").mesh));
     disks.push_back({"lion-head x16 (midpoint subdivided twice)", big});
+    disks.push_back({"lion-head x16 peeled to 100K vertices", peel(big, 100000)});
   }
   {
     mesh::TriMesh big = mesh::subdivide_midpoint(mesh::subdivide_midpoint(mesh::load_mesh(data + "/mannequin-devil.off").mesh));
