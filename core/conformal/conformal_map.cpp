@@ -513,7 +513,13 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
     }
     return t;
   };
-  YamabeOptions yo{opt.tolerance, opt.max_iterations, opt.progress};
+  YamabeOptions yo;
+  yo.tolerance = opt.tolerance;
+  yo.max_iterations = opt.max_iterations;
+  yo.progress = opt.progress;
+  // One kept factor for every round: a round restarted after boundary splits preconditions
+  // with the last factor (GMRES absorbs the few new vertices) instead of factoring afresh.
+  yo.kept_factor = make_kept_factor();
   const int pinned = loop.front();
   auto pin = [&]() {
     std::vector<char> fixed(T.num_vertices(), 0);
@@ -625,7 +631,10 @@ bool punctured_plane(const mesh::TriMesh& m, int p, const mesh::CutHole& cut,
     t.K = Eigen::VectorXd::Zero(tri.num_vertices());
     return t;
   };
-  YamabeOptions yo{opt.tolerance, opt.max_iterations, opt.progress};
+  YamabeOptions yo;
+  yo.tolerance = opt.tolerance;
+  yo.max_iterations = opt.max_iterations;
+  yo.progress = opt.progress;
   try {
     yr = solve_yamabe(T, flat, u, fixed, yo);
   } catch (const Error& e) {

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <numbers>
 #include <vector>
 
@@ -103,11 +104,14 @@ Eigen::SparseMatrix<double> curvature_jacobian(const IntrinsicTriangulation& T,
 
 namespace {
 
+
+}  // namespace
+
 // The preconditioner of the Newton systems: a Cholesky factorization of the cotangent
 // Laplacian H on the free vertices (positive definite: Delaunay weights, one vertex pinned),
 // kept across iterations. Supernodal LL^T (BLAS-3; with OpenBLAS about twice as fast as a
 // simplicial LDL^T of the indefinite J at 133K vertices); LDL^T if round-off defeats LL^T.
-struct Preconditioner {
+struct KeptFactor {
   Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt;
   Eigen::CholmodSimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
   bool use_llt = true, ready = false;
@@ -119,11 +123,19 @@ struct Preconditioner {
   // always takes the same path.
   int budget = 30;
   bool refresh = false;  // the kept factor has grown stale: factor afresh at the next step
-  Preconditioner() {
+  // The free vertices it was factored on (row r is vertex vertex_of_row[r] of the
+  // triangulation) and the reverse map, so that a later system -- after boundary splits
+  // added vertices -- can still use it.
+  std::vector<int> vertex_of_row, row_of_vertex;
+  KeptFactor() {
     llt.cholmod().print = 0;  // CHOLMOD's own messages off; failures are checked via info()
     ldlt.cholmod().print = 0;
   }
-  bool factor(const Eigen::SparseMatrix<double>& H) {
+  bool factor(const Eigen::SparseMatrix<double>& H, const std::vector<int>& index) {
+    vertex_of_row.assign(H.rows(), -1);
+    row_of_vertex = index;
+    for (int v = 0; v < static_cast<int>(index.size()); ++v)
+      if (index[v] >= 0) vertex_of_row[index[v]] = v;
     llt.compute(H);
     use_llt = llt.info() == Eigen::Success;
     if (!use_llt) ldlt.compute(H);
@@ -136,9 +148,30 @@ struct Preconditioner {
   Eigen::VectorXd solve(const Eigen::VectorXd& b) const {
     return use_llt ? Eigen::VectorXd(llt.solve(b)) : Eigen::VectorXd(ldlt.solve(b));
   }
+  /// Whether the factor's rows are exactly the free vertices of `index`.
+  bool matches(const std::vector<int>& index) const { return index == row_of_vertex; }
+  /// P^{-1} b for a system on the free vertices of `index`, which may hold vertices the
+  /// factor never saw (new boundary split points: diagonally scaled by `diag`) and miss
+  /// some it did (their entries are zero): a block preconditioner that differs from the
+  /// factor in the rank of the new vertices, which GMRES absorbs in as many iterations.
+  Eigen::VectorXd solve_mapped(const Eigen::VectorXd& b, const std::vector<int>& index,
+                               const Eigen::VectorXd& diag) const {
+    Eigen::VectorXd y = Eigen::VectorXd::Zero(static_cast<int>(vertex_of_row.size()));
+    for (int v = 0; v < static_cast<int>(index.size()); ++v)
+      if (index[v] >= 0 && v < static_cast<int>(row_of_vertex.size()) && row_of_vertex[v] >= 0)
+        y[row_of_vertex[v]] = b[index[v]];
+    y = solve(y);
+    Eigen::VectorXd x(b.size());
+    for (int v = 0; v < static_cast<int>(index.size()); ++v) {
+      if (index[v] < 0) continue;
+      bool known = v < static_cast<int>(row_of_vertex.size()) && row_of_vertex[v] >= 0;
+      x[index[v]] = known ? y[row_of_vertex[v]] : b[index[v]] / diag[index[v]];
+    }
+    return x;
+  }
 };
 
-}  // namespace
+std::shared_ptr<KeptFactor> make_kept_factor() { return std::make_shared<KeptFactor>(); }
 
 YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& target,
                           const Eigen::VectorXd& u0, const std::vector<char>& fixed,
@@ -167,7 +200,9 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
   Eigen::VectorXd g = residual(tg, r.u);
   r.residual = g.cwiseAbs().maxCoeff();
 
-  Preconditioner pre;
+  // The kept factor: the caller's (shared across the solves of one map) or our own.
+  std::shared_ptr<KeptFactor> kept = opt.kept_factor ? opt.kept_factor : std::make_shared<KeptFactor>();
+  KeptFactor& pre = *kept;
   std::vector<double> history;
   for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
     if (r.residual <= opt.tolerance) break;
@@ -196,7 +231,10 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
       if (c != 0) y += c * wr.dot(x) * wr;
       return y;
     };
-    auto precondition = [&](const Eigen::VectorXd& x) { return pre.solve(x); };
+    const Eigen::VectorXd diag = J.diagonal();
+    auto precondition = [&](const Eigen::VectorXd& x) {
+      return pre.matches(index) ? pre.solve(x) : pre.solve_mapped(x, index, diag);
+    };
     const Eigen::VectorXd gr = reduce(g);
     // Forcing term min(1e-2, max|g|): quadratic convergence, and the last step usually lands
     // far below the tolerance (the map is then exact to round-off where it can be).
@@ -205,7 +243,7 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
     numeric::KrylovResult kr;
     for (int attempt = 0; attempt < 2 && !kr.converged; ++attempt) {
       const bool fresh = !pre.ready || pre.refresh || attempt > 0;
-      if (fresh && !pre.factor(newton_matrix(T, r.u, index, nfree, {}))) break;
+      if (fresh && !pre.factor(newton_matrix(T, r.u, index, nfree, {}), index)) break;
       d = Eigen::VectorXd::Zero(nfree);
       // A kept factor gets the budget of iterations one factorization is worth; when it
       // needs more than half of it, it is refreshed at the next step.

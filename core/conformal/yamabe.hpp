@@ -5,6 +5,7 @@
 #include <Eigen/Core>
 #include <Eigen/SparseCore>
 #include <functional>
+#include <memory>
 #include <vector>
 
 #include "conformal/intrinsic.hpp"
@@ -27,6 +28,12 @@ struct Target {
 using TargetCurvature =
     std::function<Target(const IntrinsicTriangulation&, const Eigen::VectorXd& u)>;
 
+/// A Cholesky factor of the Newton system kept between solves (opaque): passing the same one
+/// to the solves of one map lets a solve restarted after boundary splits precondition with
+/// the previous factor instead of factoring afresh.
+struct KeptFactor;
+std::shared_ptr<KeptFactor> make_kept_factor();
+
 struct YamabeOptions {
   double tolerance = 1e-7;  // stop when max_i |K_i - Kbar_i| <= tolerance (radians)
   int max_iterations = 200;
@@ -34,6 +41,7 @@ struct YamabeOptions {
   /// Return (blocked = true) as soon as a boundary triangle throttles the steps, so that
   /// the caller can refine the boundary; otherwise crawl on.
   bool stop_when_blocked = true;
+  std::shared_ptr<KeptFactor> kept_factor;  // null: each solve keeps its own
 };
 
 struct YamabeResult {
