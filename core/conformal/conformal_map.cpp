@@ -338,6 +338,45 @@ int tutte_repair(const mesh::TriMesh& m, const Fans& fan, mesh::Vertices& X, con
   return replaced;
 }
 
+
+// Where the conformal map compresses the boundary below ~1e-8 (the tips of long
+// protrusions), a boundary "ear" -- a face whose three corners are consecutive boundary
+// vertices, all on the unit circle -- has an area of about d^3 / 4 for a spacing d, far
+// below the round-off of its cross product (~1e-16 d): its sign is noise, and no placement
+// of the three points exactly on the circle can be told apart from a fold in doubles. The
+// corner is moved radially by the fewest units in the last place (|z| = 1 +- O(1e-15)) that
+// leave every face around it positively oriented, which resolves the ear as the triangle it
+// is. Returns the ears fixed.
+int fix_round_off_ears(const mesh::TriMesh& m, mesh::Vertices& X, const std::vector<char>& boundary) {
+  std::vector<std::vector<int>> faces_of(m.num_vertices());
+  std::vector<int> ears;
+  for (int f = 0; f < m.num_faces(); ++f)
+    if (face_folded(m, X, f, false) && boundary[m.F(f, 0)] && boundary[m.F(f, 1)] && boundary[m.F(f, 2)])
+      ears.push_back(f);
+  if (ears.empty()) return 0;
+  for (int f = 0; f < m.num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) faces_of[m.F(f, k)].push_back(f);
+  int fixed = 0;
+  for (int f : ears) {
+    bool done = false;
+    for (int k = 0; k < 3 && !done; ++k) {
+      const int v = m.F(f, k);
+      const Eigen::RowVector3d keep = X.row(v);
+      for (int ulps = 1; ulps <= 32 && !done; ++ulps)
+        for (int sign : {1, -1}) {
+          X.row(v) = keep * (1.0 + sign * ulps * std::numeric_limits<double>::epsilon());
+          done = std::none_of(faces_of[v].begin(), faces_of[v].end(), [&](int g) { return face_folded(m, X, g, false); });
+          if (done) break;
+        }
+      if (!done) X.row(v) = keep;
+    }
+    fixed += done;
+  }
+  return fixed;
+}
+
+}  // namespace
+
 // Planar positions X (#V by 3, z = 0) of `m`: folded faces are repaired by a Tutte
 // embedding of the free vertices within a few rings of them, the region doubling until no
 // fold is left (the last region is every vertex not `fixed`: with a convex fixed outline,
@@ -390,44 +429,6 @@ int repair_planar_folds(const mesh::TriMesh& m, mesh::Vertices& X, const std::ve
   }
   return replaced_total;
 }
-
-// Where the conformal map compresses the boundary below ~1e-8 (the tips of long
-// protrusions), a boundary "ear" -- a face whose three corners are consecutive boundary
-// vertices, all on the unit circle -- has an area of about d^3 / 4 for a spacing d, far
-// below the round-off of its cross product (~1e-16 d): its sign is noise, and no placement
-// of the three points exactly on the circle can be told apart from a fold in doubles. The
-// corner is moved radially by the fewest units in the last place (|z| = 1 +- O(1e-15)) that
-// leave every face around it positively oriented, which resolves the ear as the triangle it
-// is. Returns the ears fixed.
-int fix_round_off_ears(const mesh::TriMesh& m, mesh::Vertices& X, const std::vector<char>& boundary) {
-  std::vector<std::vector<int>> faces_of(m.num_vertices());
-  std::vector<int> ears;
-  for (int f = 0; f < m.num_faces(); ++f)
-    if (face_folded(m, X, f, false) && boundary[m.F(f, 0)] && boundary[m.F(f, 1)] && boundary[m.F(f, 2)])
-      ears.push_back(f);
-  if (ears.empty()) return 0;
-  for (int f = 0; f < m.num_faces(); ++f)
-    for (int k = 0; k < 3; ++k) faces_of[m.F(f, k)].push_back(f);
-  int fixed = 0;
-  for (int f : ears) {
-    bool done = false;
-    for (int k = 0; k < 3 && !done; ++k) {
-      const int v = m.F(f, k);
-      const Eigen::RowVector3d keep = X.row(v);
-      for (int ulps = 1; ulps <= 32 && !done; ++ulps)
-        for (int sign : {1, -1}) {
-          X.row(v) = keep * (1.0 + sign * ulps * std::numeric_limits<double>::epsilon());
-          done = std::none_of(faces_of[v].begin(), faces_of[v].end(), [&](int g) { return face_folded(m, X, g, false); });
-          if (done) break;
-        }
-      if (!done) X.row(v) = keep;
-    }
-    fixed += done;
-  }
-  return fixed;
-}
-
-}  // namespace
 
 ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
   mesh::require_domain(mesh::compute_topology(m), mesh::Domain::kDisk);

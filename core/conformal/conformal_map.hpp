@@ -49,6 +49,14 @@ struct ConformalMap {
   int folded_faces = 0;
 };
 
+/// Repairs folded faces of a planar map X (#V by 3, z = 0) of `mesh`: a Tutte embedding
+/// with mean value weights of the free vertices within a few rings of the folds, the region
+/// doubling until none is left (the last region is every vertex not `fixed`; with a convex
+/// fixed outline Floater's theorem guarantees an embedding). Kept only if it folds fewer
+/// faces. Returns the vertices whose weights were replaced; `folded` gets the folds left.
+int repair_planar_folds(const mesh::TriMesh& mesh, mesh::Vertices& X, const std::vector<char>& fixed,
+                        int& folded);
+
 /// Boundary curvature targets of the disk map (the turning angles of a polygon with edge
 /// lengths L, in loop order, inscribed in a circle): turning[i] at vertex i between edges
 /// i-1 and i, summing to 2 pi; tau[i] = tan(a_i / 2) for the central angles a_i, which give

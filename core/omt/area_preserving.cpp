@@ -1,0 +1,62 @@
+#include "omt/area_preserving.hpp"
+
+#include <cmath>
+#include <string>
+
+#include "common/error.hpp"
+#include "mesh/geometry.hpp"
+#include "mesh/topology.hpp"
+
+namespace brenier::omt {
+
+Eigen::VectorXd vertex_masses(const mesh::TriMesh& m) {
+  const Eigen::VectorXd area = mesh::face_areas(m);
+  Eigen::VectorXd mass = Eigen::VectorXd::Zero(m.num_vertices());
+  for (int f = 0; f < m.num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) mass[m.F(f, k)] += area[f] / 3.0;
+  return mass;
+}
+
+AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
+  const int nv = m.num_vertices();
+  if (opt.weights.size() != 0) {
+    if (opt.weights.size() != nv)
+      invalid("weights: " + std::to_string(opt.weights.size()) + " values for " + std::to_string(nv) + " vertices");
+    for (int v = 0; v < nv; ++v)
+      if (!(opt.weights[v] > 0) || !std::isfinite(opt.weights[v]))
+        invalid("the weight of vertex " + std::to_string(v) + " is " + std::to_string(opt.weights[v]) +
+                "; weights must be positive");
+  }
+  AreaPreservingMap out;
+  // (1) conformal map phi: S -> D (Alg. 1).
+  out.conformal = conformal::map_to_disk(m, opt.conformal);
+  if (!out.conformal.converged)
+    fail(ErrorCode::kNotConverged, "the conformal map did not converge: max |K - Kbar| = " +
+                                       std::to_string(out.conformal.max_curvature_error));
+  // (2) sites p_i = phi(v_i), masses nu_i of eq. 3.30 times the region weights (sec. 6.3),
+  // scaled to the disk's area pi inside solve_omt.
+  Points sites = out.conformal.positions.leftCols(2);
+  Eigen::VectorXd nu = vertex_masses(m);
+  if (opt.weights.size() != 0) nu = nu.cwiseProduct(opt.weights);
+  // (3) the OMT map tau from the uniform disk to (p, nu) (Alg. 2).
+  out.omt = solve_omt(Domain::unit_disk(), sites, nu, opt.omt);
+  if (!out.omt.converged)
+    fail(ErrorCode::kNotConverged,
+         "the optimal transport did not converge: max relative cell-mass error " +
+             std::to_string(out.omt.max_relative_error) + " after " + std::to_string(out.omt.iterations) +
+             " Newton iterations");
+  // (4) tau^{-1} o phi: each vertex goes to the centroid of its cell W_i = tau^{-1}(p_i).
+  out.positions = mesh::Vertices::Zero(nv, 3);
+  out.positions.leftCols(2) = out.omt.cells.centroid;
+  // Centroids of neighbouring cells can come out in the wrong order where the conformal map
+  // crowds the sites (a fold of the piecewise-linear map through the vertices, though tau
+  // itself is a bijection); those faces are repaired locally by the mean-value Tutte
+  // embedding the conformal map uses, the rest of the map kept as it is.
+  std::vector<char> fixed(nv, 0);
+  for (const auto& loop : mesh::boundary_loops(m))
+    for (int v : loop) fixed[v] = 1;
+  out.relaxed_vertices = conformal::repair_planar_folds(m, out.positions, fixed, out.folded_faces);
+  return out;
+}
+
+}  // namespace brenier::omt

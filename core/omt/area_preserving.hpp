@@ -1,0 +1,38 @@
+// Area-preserving parameterization of a topological disk onto the unit disk (dissertation
+// sec. 3.2.4, Alg. 3): the conformal map, then the optimal transport from the uniform disk
+// to the conformal images of the vertices weighted by their areas; each vertex goes to the
+// centroid of its power cell.
+#pragma once
+
+#include <Eigen/Core>
+
+#include "conformal/conformal_map.hpp"
+#include "mesh/mesh.hpp"
+#include "omt/omt.hpp"
+
+namespace brenier::omt {
+
+struct AreaPreservingOptions {
+  conformal::ConformalOptions conformal;
+  OmtOptions omt;
+  /// Region-of-interest multipliers of the vertex masses (sec. 6.3), one per vertex, > 0;
+  /// empty: all 1. A region with weight 4 gets four times its share of the disk.
+  Eigen::VectorXd weights;
+};
+
+struct AreaPreservingMap {
+  mesh::Vertices positions;  // #V by 3, z = 0: the centroids of the cells, inside the disk
+  conformal::ConformalMap conformal;
+  OmtResult omt;
+  int relaxed_vertices = 0;  // moved by the local fold repair after the centroids
+  int folded_faces = 0;      // left folded after it
+};
+
+/// Vertex masses of eq. 3.30: one third of the adjacent face areas.
+Eigen::VectorXd vertex_masses(const mesh::TriMesh& mesh);
+
+/// Throws Error(kInvalidArgument) for a mesh that is not a disk or bad weights,
+/// Error(kNotConverged) when the conformal map or the transport does not converge.
+AreaPreservingMap area_preserving_disk(const mesh::TriMesh& mesh, const AreaPreservingOptions& options = {});
+
+}  // namespace brenier::omt

@@ -1,0 +1,155 @@
+#include "omt/omt.hpp"
+
+#include <Eigen/CholmodSupport>
+#include <Eigen/SparseCore>
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+#include "common/error.hpp"
+#include "numeric/krylov.hpp"
+
+namespace brenier::omt {
+
+namespace {
+
+// The Hessian of eq. 3.28 on heights 1..n-1 (h_0 is held: the energy is invariant under
+// adding a constant to h, so the Hessian is singular along the constants): the weighted
+// graph Laplacian of the clipped dual edges. (Eq. 3.28 prints the off-diagonal entries
+// with a plus sign; d w_i / d h_j = -|e_ij| / |y_i - y_j| for j != i, since raising h_j
+// grows W_j at W_i's expense, and the diagonal is minus the sum of its row.)
+Eigen::SparseMatrix<double> hessian(const PowerCells& cells, const Points& sites, int n) {
+  std::vector<Eigen::Triplet<double>> trip;
+  trip.reserve(4 * cells.edges.size());
+  Eigen::VectorXd diag = Eigen::VectorXd::Zero(n);
+  for (const DualEdge& e : cells.edges) {
+    const double w = e.length / (sites.row(e.i) - sites.row(e.j)).norm();
+    diag[e.i] += w;
+    diag[e.j] += w;
+    if (e.i > 0 && e.j > 0) {
+      trip.emplace_back(e.i - 1, e.j - 1, -w);
+      trip.emplace_back(e.j - 1, e.i - 1, -w);
+    }
+  }
+  for (int i = 1; i < n; ++i) trip.emplace_back(i - 1, i - 1, diag[i]);
+  Eigen::SparseMatrix<double> H(n - 1, n - 1);
+  H.setFromTriplets(trip.begin(), trip.end());
+  return H;
+}
+
+double max_relative(const Eigen::VectorXd& w, const Eigen::VectorXd& nu) {
+  return ((w - nu).array().abs() / nu.array()).maxCoeff();
+}
+
+}  // namespace
+
+OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu_in,
+                    const OmtOptions& opt) {
+  const int n = static_cast<int>(sites.rows());
+  if (n == 0) invalid("no sites");
+  if (nu_in.size() != n)
+    invalid("target masses: " + std::to_string(nu_in.size()) + " for " + std::to_string(n) + " sites");
+  for (int i = 0; i < n; ++i)
+    if (!(nu_in[i] > 0) || !std::isfinite(nu_in[i]))
+      invalid("target mass of site " + std::to_string(i) + " is " + std::to_string(nu_in[i]) + "; it must be positive");
+  if (!(opt.tolerance > 0)) invalid("the OMT tolerance must be positive");
+  OmtResult r;
+  r.target = nu_in * (domain.area() / nu_in.sum());
+  const Eigen::VectorXd& nu = r.target;
+  // Alg. 2 starts from the Voronoi diagram ("h = 0" in the power-distance convention); with
+  // u_h = max <x, y_i> + h_i that is h_i = -|y_i|^2 / 2 (equal power weights).
+  r.h = -0.5 * sites.rowwise().squaredNorm();
+  r.cells = power_cells(domain, sites, r.h);
+  r.max_relative_error = max_relative(r.cells.mass, nu);
+  if (n == 1) {
+    r.converged = true;
+    return r;
+  }
+  // Kitagawa-Merigot-Thibert damping: every cell keeps at least eps0.
+  const double eps0 = 0.5 * std::min(nu.minCoeff(), r.cells.mass.minCoeff());
+  if (!(eps0 > 0))
+    invalid(std::to_string(r.cells.empty_cells) +
+            " sites have empty cells at h = 0 (a site outside the domain behind others?); move the sites into the domain");
+  Eigen::VectorXd g = r.cells.mass - nu;
+
+  // The Newton systems are solved by conjugate-gradient-like GMRES preconditioned with the
+  // sparse Cholesky factor of an earlier Hessian (CHOLMOD supernodal), refactored only when
+  // the kept one needs more than `budget` iterations: consecutive Hessians differ little.
+  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt;
+  llt.cholmod().print = 0;
+  bool have_factor = false;
+  constexpr int kBudget = 30;
+  for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
+    if (r.max_relative_error <= opt.tolerance) break;
+    const Eigen::SparseMatrix<double> H = hessian(r.cells, sites, n);
+    // The error is relative per cell, so the Newton system is solved in that metric: rows
+    // scaled by 1/nu_i (the residual GMRES minimizes is then the relative cell-mass change
+    // left unexplained), with P^{-1} = H_kept^{-1} D as the matching right preconditioner.
+    // Unscaled, a 2-norm tolerance lets the smallest cells (nu ratio 1e4 and more) stall.
+    const Eigen::VectorXd inv_nu = nu.tail(n - 1).cwiseInverse();
+    const Eigen::VectorXd rhs = -g.tail(n - 1).cwiseProduct(inv_nu);
+    auto apply = [&](const Eigen::VectorXd& x) { return Eigen::VectorXd((H * x).cwiseProduct(inv_nu)); };
+    auto precondition = [&](const Eigen::VectorXd& x) {
+      return Eigen::VectorXd(llt.solve(Eigen::VectorXd(x.cwiseQuotient(inv_nu))));
+    };
+    // Relative accuracy of the direction: enough for quadratic convergence (forcing term
+    // proportional to the error), never looser than 1e-2.
+    bool accepted = false;
+    // Two passes: the direction from the kept factor at the forcing-term accuracy; if no
+    // step along it is accepted, once more from a fresh factor solved to 1e-10 (an
+    // inexact direction measured in the per-cell metric need not descend in the 2-norm of
+    // the line search).
+    for (int pass = 0; pass < 2 && !accepted; ++pass) {
+      const double eta = pass ? 1e-10 : std::clamp(r.max_relative_error, 1e-12, 1e-2);
+      Eigen::VectorXd d;
+      numeric::KrylovResult kr;
+      for (int attempt = 0; attempt < 2 && !kr.converged; ++attempt) {
+        const bool fresh = !have_factor || attempt > 0 || (pass > 0 && attempt == 0);
+        if (fresh) {
+          llt.compute(H);
+          if (llt.info() != Eigen::Success)
+            fail(ErrorCode::kNotConverged, "the OMT Hessian is singular at iteration " +
+                                               std::to_string(r.iterations) +
+                                               " (a cell without neighbours inside the domain)");
+          have_factor = true;
+          ++r.factorizations;
+        }
+        d = Eigen::VectorXd::Zero(n - 1);
+        kr = numeric::gmres(apply, precondition, rhs, d, eta, fresh ? 100 : kBudget);
+        r.linear_iterations += kr.iterations;
+        if (fresh) break;
+      }
+      Eigen::VectorXd dh = Eigen::VectorXd::Zero(n);
+      dh.tail(n - 1) = d;
+      double t = 1;
+      const double gnorm = g.norm();
+      // Kitagawa-Merigot-Thibert halving; 30 halvings (t = 1e-9) without progress mean the
+      // round-off floor.
+      for (int halvings = 0; halvings < 30; ++halvings, t *= 0.5) {
+        Eigen::VectorXd trial = r.h + t * dh;
+        PowerCells c = power_cells(domain, sites, trial);
+        if (c.empty_cells > 0 || c.mass.minCoeff() < eps0) continue;
+        Eigen::VectorXd gt = c.mass - nu;
+        if (gt.norm() <= (1 - 0.5 * t) * gnorm || max_relative(c.mass, nu) <= opt.tolerance) {
+          r.h = std::move(trial);
+          r.cells = std::move(c);
+          g = std::move(gt);
+          accepted = true;
+          break;
+        }
+      }
+    }
+    r.max_relative_error = max_relative(r.cells.mass, nu);
+    if (opt.progress && !opt.progress(r.iterations + 1, r.max_relative_error))
+      fail(ErrorCode::kCancelled, "optimal transport cancelled");
+    if (!accepted) {
+      ++r.iterations;
+      break;  // round-off floor: no step improves any more
+    }
+  }
+  r.h.array() -= r.h.mean();
+  r.converged = r.max_relative_error <= opt.tolerance;
+  return r;
+}
+
+}  // namespace brenier::omt

@@ -1,0 +1,49 @@
+// Semi-discrete optimal mass transport from the uniform density on a convex domain to
+// weighted sites (dissertation Thm 3.8/3.9, Alg. 2): Newton's method on the convex energy
+// E(h) = ∫ u_h - sum nu_i h_i (eq. 3.25), one power diagram per step.
+#pragma once
+
+#include <Eigen/Core>
+#include <functional>
+
+#include "omt/power_diagram.hpp"
+
+namespace brenier::omt {
+
+/// Called after every Newton iteration with (iteration, max relative cell-mass error);
+/// returning false cancels the solve (Error(kCancelled)).
+using Progress = std::function<bool(int iteration, double residual)>;
+
+struct OmtOptions {
+  /// Stop when max_i |w_i - nu_i| / nu_i <= tolerance: relative per cell, so the smallest
+  /// cells are as exact as the largest.
+  double tolerance = 1e-8;
+  int max_iterations = 200;
+  Progress progress;
+};
+
+struct OmtResult {
+  Eigen::VectorXd h;       // heights, sum zero (unique up to a constant: Thm 3.8)
+  PowerCells cells;        // the power diagram at h
+  Eigen::VectorXd target;  // nu, scaled to the domain's area
+  int iterations = 0;
+  double max_relative_error = 0;  // max_i |w_i - nu_i| / nu_i at h
+  bool converged = false;
+  long linear_iterations = 0;  // preconditioned CG iterations, summed
+  int factorizations = 0;
+};
+
+/// The OT map from the uniform density on `domain` to the sites with masses `nu` (any
+/// positive scale: they are scaled to the domain's area). Sites must be distinct; they may
+/// lie anywhere (those outside the domain get cells along its edge). Newton direction from
+/// the Hessian of eq. 3.28 -- the weighted graph Laplacian of the power diagram, edge
+/// (i, j) weighted by |W_i ∩ W_j ∩ Omega| / |y_i - y_j| -- on the sum-zero subspace; the
+/// step is damped as in Kitagawa, Merigot and Thibert (2019): halved until every cell keeps
+/// at least half the smaller of its target and the initial smallest cell, and the gradient
+/// shrinks by (1 - t/2) -- Alg. 2's "halve while a cell is empty", with the guarantee of
+/// global convergence. Throws Error(kInvalidArgument) for bad input; a solve that stops
+/// short returns converged = false with its iteration count and error.
+OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu,
+                    const OmtOptions& options = {});
+
+}  // namespace brenier::omt

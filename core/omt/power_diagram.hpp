@@ -1,0 +1,52 @@
+// Power diagrams of weighted sites clipped exactly by a convex domain (dissertation sec.
+// 3.2.2-3.2.3, 6.2.2): the cells, their masses, centroids and second moments, and the
+// clipped dual edges the Newton Hessian of the OMT energy is made of (eq. 3.27-3.28).
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+namespace brenier::omt {
+
+using Points = Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>;
+
+/// The source domain Omega with the uniform density: a disk of radius R centred at the
+/// origin (cells clipped with exact circular arcs) or a convex polygon.
+struct Domain {
+  bool is_disk = true;
+  double radius = 1.0;
+  Points polygon;  // counter-clockwise corners when !is_disk
+
+  static Domain unit_disk();
+  /// Throws Error(kInvalidArgument) unless the corners form a convex counter-clockwise
+  /// polygon of positive area.
+  static Domain convex_polygon(const Points& corners);
+  static Domain square(double half_side = 1.0);
+  double area() const;
+  bool contains(double x, double y, double slack = 0) const;
+};
+
+/// One clipped dual edge: the common boundary of cells i < j inside the domain.
+struct DualEdge {
+  int i, j;
+  double length;  // of W_i ∩ W_j ∩ Omega
+};
+
+struct PowerCells {
+  Eigen::VectorXd mass;        // |W_i ∩ Omega| (uniform density)
+  Points centroid;             // of W_i ∩ Omega (the site itself when the cell is empty)
+  Eigen::VectorXd second_moment;  // ∫_{W_i ∩ Omega} |x - y_i|^2 dx: the transport cost
+  std::vector<DualEdge> edges;
+  int empty_cells = 0;         // hidden sites and cells that miss the domain
+};
+
+/// The power diagram of sites y_i with heights h_i in the convention of sec. 6.2.2:
+/// u_h(x) = max_i <x, y_i> + h_i, W_i = {x : <x, y_i> + h_i is the max}, i.e. the power
+/// diagram of the weighted points (y_i, |y_i|^2 + 2 h_i). Built on CGAL's
+/// Regular_triangulation_2 (exact predicates); each cell is the intersection of the
+/// half-planes of its regular-triangulation neighbours with the domain, integrated
+/// exactly (circular sectors for the disk). Cells are computed in parallel.
+/// Throws Error(kInvalidArgument) for coincident sites or non-finite input.
+PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::VectorXd& h);
+
+}  // namespace brenier::omt

@@ -1,0 +1,200 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+#include <random>
+
+#include "common/error.hpp"
+#include "conformal/conformal_map.hpp"
+#include "mesh/geometry.hpp"
+#include "mesh/shapes.hpp"
+#include "omt/area_preserving.hpp"
+#include "omt/omt.hpp"
+#include "omt/power_diagram.hpp"
+#include "quality/quality.hpp"
+
+using namespace brenier;
+using omt::Domain;
+using omt::Points;
+
+namespace {
+
+Points random_in_disk(int n, unsigned seed, double radius = 0.95) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> U(-1.0, 1.0);
+  Points p(n, 2);
+  for (int k = 0; k < n;) {
+    double x = U(rng), y = U(rng);
+    if (x * x + y * y < 1) p.row(k++) << radius * x, radius * y;
+  }
+  return p;
+}
+
+double max_relative(const Eigen::VectorXd& w, const Eigen::VectorXd& nu) {
+  return ((w - nu).array().abs() / nu.array()).maxCoeff();
+}
+
+}  // namespace
+
+TEST(PowerCells, VoronoiQuartersOfTheDiskAndSquareAreExact) {
+  // Sites (0,0), (1/2,0), (0,1/2) with equal power weights (h = -|y|^2/2): the Voronoi cells.
+  Points y(3, 2);
+  y << 0, 0, 0.5, 0, 0, 0.5;
+  Eigen::VectorXd h = -0.5 * y.rowwise().squaredNorm();
+  auto sq = omt::power_cells(Domain::square(1.0), y, h);
+  EXPECT_NEAR(sq.mass[0], 1.25 * 1.25, 1e-14);  // x, y < 1/4
+  EXPECT_NEAR(sq.mass.sum(), 4.0, 1e-14);
+  // With h = 0 the cells are cones from the origin: cell 0 = the quarter x, y < 0.
+  auto disk = omt::power_cells(Domain::unit_disk(), y, Eigen::VectorXd::Zero(3));
+  EXPECT_NEAR(disk.mass[0], std::numbers::pi / 4, 1e-14);
+  EXPECT_NEAR(disk.centroid(0, 0), -4.0 / (3 * std::numbers::pi), 1e-14);  // quarter disk
+  EXPECT_NEAR(disk.mass.sum(), std::numbers::pi, 1e-14);
+  for (const auto& e : disk.edges) EXPECT_NEAR(e.length, 1.0, 1e-14);  // radii of the disk
+  // Second moment about the site of the quarter disk at the origin: pi/8.
+  EXPECT_NEAR(disk.second_moment[0], std::numbers::pi / 8, 1e-14);
+}
+
+TEST(PowerCells, MassesTileTheDomainAndEdgesAreConsistent) {
+  Points y = random_in_disk(500, 3, 1.2);  // some sites outside the disk
+  Eigen::VectorXd h = Eigen::VectorXd::Random(500) * 0.05;
+  for (const Domain& d : {Domain::unit_disk(), Domain::square(1.0)}) {
+    auto c = omt::power_cells(d, y, h);
+    EXPECT_NEAR(c.mass.sum(), d.area(), 1e-12);
+    for (const auto& e : c.edges) {
+      EXPECT_GT(e.length, 0);
+      EXPECT_LT(e.i, e.j);
+    }
+  }
+}
+
+TEST(PowerCells, RefusesCoincidentSites) {
+  Points y(3, 2);
+  y << 0, 0, 0.5, 0, 0, 0;
+  EXPECT_THROW(omt::power_cells(Domain::unit_disk(), y, Eigen::VectorXd::Zero(3)), Error);
+}
+
+TEST(Omt, MassesEqualTargetsAtConvergence) {
+  for (const Domain& d : {Domain::unit_disk(), Domain::square(1.0)}) {
+    Points y = random_in_disk(2000, 5);
+    Eigen::VectorXd nu(2000);
+    for (int i = 0; i < 2000; ++i) nu[i] = std::exp(-8 * y.row(i).squaredNorm());  // ratio ~ e^7
+    auto r = omt::solve_omt(d, y, nu);
+    ASSERT_TRUE(r.converged) << (d.is_disk ? "disk " : "square ") << r.max_relative_error << " after " << r.iterations;
+    EXPECT_EQ(r.cells.empty_cells, 0);
+    EXPECT_LE(max_relative(r.cells.mass, r.target), 1e-8);
+    EXPECT_NEAR(r.target.sum(), d.area(), 1e-12);
+    EXPECT_NEAR(r.h.sum(), 0.0, 1e-9);
+    EXPECT_GT(r.iterations, 0);
+  }
+}
+
+TEST(Omt, HeightsAreUniqueUpToAConstant) {
+  // Thm 3.8: adding a constant to h changes no cell; and the solution does not depend on
+  // the order of the sites.
+  Points y = random_in_disk(300, 7);
+  Eigen::VectorXd nu = (1.0 + y.col(0).array()).matrix();
+  auto r = omt::solve_omt(Domain::unit_disk(), y, nu);
+  ASSERT_TRUE(r.converged);
+  auto shifted = omt::power_cells(Domain::unit_disk(), y, (r.h.array() + 3.7).matrix());
+  EXPECT_LT((shifted.mass - r.cells.mass).cwiseAbs().maxCoeff(), 1e-12);
+  std::vector<int> perm(300);
+  for (int i = 0; i < 300; ++i) perm[i] = (i * 7 + 3) % 300;
+  Points yp(300, 2);
+  Eigen::VectorXd nup(300);
+  for (int i = 0; i < 300; ++i) {
+    yp.row(i) = y.row(perm[i]);
+    nup[i] = nu[perm[i]];
+  }
+  auto rp = omt::solve_omt(Domain::unit_disk(), yp, nup);
+  ASSERT_TRUE(rp.converged);
+  for (int i = 0; i < 300; ++i) EXPECT_NEAR(rp.h[i], r.h[perm[i]], 1e-7);
+}
+
+TEST(Omt, SymmetricSitesWithEqualMassesGiveSymmetricCells) {
+  // A centre and a regular hexagon: after transport the cells are rotations of one another
+  // (60 degrees) and the centre cell is centred.
+  Points y(7, 2);
+  y.row(0) << 0, 0;
+  for (int k = 0; k < 6; ++k) y.row(k + 1) << 0.3 * std::cos(k * std::numbers::pi / 3), 0.3 * std::sin(k * std::numbers::pi / 3);
+  auto r = omt::solve_omt(Domain::unit_disk(), y, Eigen::VectorXd::Ones(7));
+  ASSERT_TRUE(r.converged);
+  EXPECT_NEAR(r.cells.centroid.row(0).norm(), 0.0, 1e-9);
+  const double c = std::cos(std::numbers::pi / 3), s = std::sin(std::numbers::pi / 3);
+  for (int k = 0; k < 6; ++k) {
+    Eigen::Vector2d a = r.cells.centroid.row(k + 1), b = r.cells.centroid.row((k + 1) % 6 + 1);
+    Eigen::Vector2d rot(c * a.x() - s * a.y(), s * a.x() + c * a.y());
+    EXPECT_LT((rot - b).norm(), 1e-9) << k;
+    EXPECT_NEAR(r.h[k + 1], r.h[1], 1e-9);
+  }
+}
+
+TEST(Omt, RadialDensityGivesTheRadialMap) {
+  // Sites on 6 rings of 96 sites each, ring k carrying total mass f_k. The continuous OT map
+  // from the uniform disk is radial: ring k's cells fill the annulus between
+  // sqrt(F_{k-1}) and sqrt(F_k) (F the cumulative fractions), whose centroid radius is
+  // 2/3 (b^3 - a^3) / (b^2 - a^2). The discrete cells approach it as the rings fill up.
+  const int rings = 6, per = 96;
+  Points y(rings * per, 2);
+  Eigen::VectorXd nu(rings * per);
+  std::vector<double> f = {0.05, 0.1, 0.15, 0.2, 0.22, 0.28};
+  for (int k = 0; k < rings; ++k)
+    for (int j = 0; j < per; ++j) {
+      double a = 2 * std::numbers::pi * (j + 0.5 * (k % 2)) / per, rad = 0.15 + 0.15 * k;
+      y.row(k * per + j) << rad * std::cos(a), rad * std::sin(a);
+      nu[k * per + j] = f[k] / per;
+    }
+  auto r = omt::solve_omt(Domain::unit_disk(), y, nu);
+  ASSERT_TRUE(r.converged);
+  double F = 0;
+  for (int k = 0; k < rings; ++k) {
+    double a = std::sqrt(F);
+    F += f[k];
+    double b = std::sqrt(F);
+    double expected = 2.0 / 3.0 * (b * b * b - a * a * a) / (b * b - a * a);
+    double mean = 0;
+    for (int j = 0; j < per; ++j) mean += r.cells.centroid.row(k * per + j).norm() / per;
+    EXPECT_NEAR(mean, expected, 0.01 * expected) << "ring " << k;
+  }
+}
+
+TEST(Omt, ClusteredSitesOfALongCylinderConverge) {
+  // The conformal image of a long open cylinder crowds its far end into a tiny region:
+  // vertex masses over site spacing span many orders of magnitude.
+  mesh::TriMesh cyl = mesh::make_cylinder(24, 80, 0.1, 1.2, true);
+  conformal::ConformalMap map = conformal::map_to_disk(cyl);
+  ASSERT_TRUE(map.converged);
+  Points y = map.positions.leftCols(2);
+  Eigen::VectorXd nu = omt::vertex_masses(cyl);
+  auto voronoi = omt::power_cells(Domain::unit_disk(), y, -0.5 * y.rowwise().squaredNorm());
+  double ratio = (nu.array() / nu.sum() / (voronoi.mass.array() / std::numbers::pi)).maxCoeff() /
+                 (nu.array() / nu.sum() / (voronoi.mass.array() / std::numbers::pi)).minCoeff();
+  EXPECT_GT(ratio, 1e6) << "target over Voronoi cell mass should span 1e6";
+  auto r = omt::solve_omt(Domain::unit_disk(), y, nu);
+  EXPECT_TRUE(r.converged) << r.max_relative_error;
+  EXPECT_EQ(r.cells.empty_cells, 0);
+}
+
+TEST(Omt, BadInputIsRefusedByName) {
+  Points y = random_in_disk(10, 1);
+  Eigen::VectorXd nu = Eigen::VectorXd::Ones(10);
+  nu[3] = 0;
+  EXPECT_THROW(omt::solve_omt(Domain::unit_disk(), y, nu), Error);
+  EXPECT_THROW(omt::solve_omt(Domain::unit_disk(), y, Eigen::VectorXd::Ones(9)), Error);
+  Points bad(3, 2);
+  bad << 0, 0, 1, 1, 1, 0;  // clockwise
+  EXPECT_THROW(Domain::convex_polygon(bad), Error);
+}
+
+TEST(AreaPreserving, DiskMeshesBecomeAreaPreservingWithoutFolds) {
+  // A hemisphere: the conformal map (stereographic) has area factors 1..4; the
+  // area-preserving map brings each face's share of the disk to its share of the surface.
+  mesh::TriMesh m = mesh::make_hemisphere(20);
+  auto ap = omt::area_preserving_disk(m);
+  auto q = quality::measure(m, ap.positions, quality::Target::kPlane);
+  auto qc = quality::measure(m, ap.conformal.positions, quality::Target::kPlane);
+  EXPECT_EQ(q.flipped_faces, 0);
+  EXPECT_EQ(ap.folded_faces, 0);
+  EXPECT_TRUE(ap.omt.converged);
+  EXPECT_LT(q.area_distortion_log_abs.mean, 0.25 * qc.area_distortion_log_abs.mean);
+  EXPECT_LE(ap.positions.leftCols(2).rowwise().norm().maxCoeff(), 1.0);
+}
