@@ -52,9 +52,16 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   // crowds the sites (a fold of the piecewise-linear map through the vertices, though tau
   // itself is a bijection); those faces are repaired locally by the mean-value Tutte
   // embedding the conformal map uses, the rest of the map kept as it is.
+  // The boundary goes to the boundary: a boundary vertex's cell meets the circle, and the
+  // vertex is put where the radius through its centroid meets it (this also makes the
+  // fixed outline of the repair below convex, as Floater's theorem asks).
   std::vector<char> fixed(nv, 0);
   for (const auto& loop : mesh::boundary_loops(m))
-    for (int v : loop) fixed[v] = 1;
+    for (int v : loop) {
+      fixed[v] = 1;
+      const double r = out.positions.row(v).norm();
+      if (r > 0) out.positions.row(v) /= r;
+    }
   out.relaxed_vertices = conformal::repair_planar_folds(m, out.positions, fixed, out.folded_faces);
   return out;
 }

@@ -114,4 +114,31 @@ for name in sorted(os.listdir(data)):
         if rc != 0:
             check(len(se.splitlines()) == 1, f"{name} onto the {domain}: stderr {se!r}")
 
+# Area-preserving (disk): the omt block, masses to the tolerance, no fold, the boundary on
+# the circle; the sphere is refused with one line; weights are checked.
+out = os.path.join(work, "lion-area.obj")
+rc, so, se = run("map", os.path.join(data, "lion-head.off"), "--method", "area-preserving", "-o", out, "--json")
+check(rc == 0 and se == "", f"lion-head area-preserving: exit {rc}, stderr {se!r}")
+if rc == 0:
+    d = json.loads(so)
+    check(d["method"] == "area-preserving", "method echoed")
+    check(set(d["omt"]) >= {"newton_iterations", "max_relative_area_error"}, f"omt keys {sorted(d['omt'])}")
+    check(d["omt"]["max_relative_area_error"] <= 1e-8, f"omt error {d['omt']['max_relative_area_error']}")
+    check(d["quality"]["flipped_faces"] == 0, "area-preserving lion-head folds")
+    check(d["quality"]["area_distortion_log"]["mean_abs"] < 0.5, f"area distortion {d['quality']['area_distortion_log']}")
+    v, vt, f = read_obj(out)
+    check(len(vt) == 8356 and max(math.hypot(*t) for t in vt) <= 1 + 1e-12, "uv inside the closed unit disk")
+rc, so, se = run("map", os.path.join(data, "bear.off"), "--domain", "sphere", "--method", "area-preserving")
+check(rc == 2 and len(se.strip().splitlines()) == 1, f"sphere area-preserving: exit {rc}, stderr {se!r}")
+wfile = os.path.join(work, "weights-short.txt")
+with open(wfile, "w") as fh:
+    fh.write("1 2 3\n")
+rc, so, se = run("map", os.path.join(data, "nefertiti.off"), "--method", "area-preserving", "--weights", wfile)
+check(rc == 2 and "weights" in se and len(se.strip().splitlines()) == 1, f"short weights: exit {rc}, stderr {se!r}")
+wfile = os.path.join(work, "weights-roi.txt")
+with open(wfile, "w") as fh:
+    fh.write("\n".join("4" if i < 150 else "1" for i in range(299)) + "\n")
+rc, so, se = run("map", os.path.join(data, "nefertiti.off"), "--method", "area-preserving", "--weights", wfile, "--json")
+check(rc == 0, f"weights: exit {rc}, stderr {se!r}")
+
 T.finish()

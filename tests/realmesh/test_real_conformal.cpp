@@ -5,12 +5,14 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <numbers>
 
 #include "common/error.hpp"
 #include "conformal/conformal_map.hpp"
 #include "mesh/geometry.hpp"
 #include "mesh/topology.hpp"
 #include "mesh/validate.hpp"
+#include "omt/area_preserving.hpp"
 #include "quality/quality.hpp"
 
 using namespace brenier;
@@ -78,5 +80,35 @@ TEST(RealConformal, ClosedMeshesOpenedWithAHoleMapOntoTheDisk) {
     conformal::ConformalMap map = conformal::map_to_disk(cut.mesh);
     EXPECT_TRUE(map.converged);
     EXPECT_EQ(quality::measure(cut.mesh, map.positions, quality::Target::kPlane).flipped_faces, 0);
+  }
+}
+
+TEST(RealAreaPreserving, EveryDiskMeshGetsAnUnfoldedAreaPreservingMap) {
+  auto cases = meshes_of_class(mesh::MeshClass::kDisk);
+  ASSERT_GE(cases.size(), 20u);
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.name);
+    omt::AreaPreservingMap ap = omt::area_preserving_disk(c.mesh);
+    EXPECT_TRUE(ap.omt.converged) << ap.omt.max_relative_error;
+    EXPECT_LE(ap.omt.max_relative_error, 1e-8);
+    EXPECT_EQ(ap.omt.cells.empty_cells, 0);
+    EXPECT_EQ(quality::measure(c.mesh, ap.positions, quality::Target::kPlane).flipped_faces, 0);
+    // Cell masses are the vertex masses (eq. 3.30) scaled to pi.
+    Eigen::VectorXd nu = omt::vertex_masses(c.mesh);
+    nu *= std::numbers::pi / nu.sum();
+    EXPECT_LE(((ap.omt.cells.mass - nu).array().abs() / nu.array()).maxCoeff(), 1e-8);
+  }
+}
+
+TEST(RealAreaPreserving, AreaDistortionFallsFarBelowTheConformalMaps) {
+  for (const char* name : {"lion-head.off", "cylinder.off", "cylinder_locally_refined.off", "mannequin-devil.off"}) {
+    SCOPED_TRACE(name);
+    mesh::CleanMesh cm = mesh::load_mesh((fs::path(BRENIER_TEST_DATA_DIR) / name).string());
+    ASSERT_TRUE(cm.valid());
+    omt::AreaPreservingMap ap = omt::area_preserving_disk(cm.mesh);
+    auto q = quality::measure(cm.mesh, ap.positions, quality::Target::kPlane);
+    auto qc = quality::measure(cm.mesh, ap.conformal.positions, quality::Target::kPlane);
+    EXPECT_LT(q.area_distortion_log_abs.mean, 0.2 * qc.area_distortion_log_abs.mean)
+        << q.area_distortion_log_abs.mean << " vs conformal " << qc.area_distortion_log_abs.mean;
   }
 }

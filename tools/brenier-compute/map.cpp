@@ -1,6 +1,10 @@
 // brenier-compute map MESH --domain disk|sphere --method conformal [...]: a map of a surface
 // onto the unit disk or sphere, written as a mesh and reported as JSON (DESIGN.md contract).
 #include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <optional>
 #include <cstdio>
 #include <iostream>
 #include <memory>
@@ -8,6 +12,7 @@
 #include "commands.hpp"
 #include "common/error.hpp"
 #include "conformal/conformal_map.hpp"
+#include "omt/area_preserving.hpp"
 #include "mesh/geometry.hpp"
 #include "quality/quality.hpp"
 
@@ -25,7 +30,8 @@ struct MapOptions {
   std::string output;
   bool json = false;
   bool allow_flips = false;
-  double tolerance = 1e-7;
+  double tolerance = 0;  // 0: the method's default (curvature 1e-7 rad; cell mass 1e-8)
+  std::string weights;
   int max_iterations = 200;
 };
 
@@ -36,6 +42,27 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 nlohmann::json stats_json(const quality::Stats& s, const char* suffix = "") {
   std::string sfx = suffix;
   return {{"mean" + sfx, s.mean}, {"p95" + sfx, s.p95}, {"max" + sfx, s.max}};
+}
+
+// One positive number per input vertex (whitespace separated), carried to the vertices of
+// the mesh being mapped through `origin` (mapped vertex -> input vertex).
+Eigen::VectorXd read_weights(const std::string& path, const std::vector<int>& origin, int input_vertices) {
+  std::ifstream in(path);
+  if (!in) invalid("cannot read the weights file " + path);
+  std::vector<double> w;
+  std::string tok;
+  while (in >> tok) {
+    char* end = nullptr;
+    double x = std::strtod(tok.c_str(), &end);
+    if (end == tok.c_str() || *end != '\0' || !(x > 0) || !std::isfinite(x))
+      invalid(path + ": weight " + std::to_string(w.size()) + " is '" + tok + "'; weights must be positive numbers");
+    w.push_back(x);
+  }
+  if (static_cast<int>(w.size()) != input_vertices)
+    invalid(path + ": " + std::to_string(w.size()) + " weights for " + std::to_string(input_vertices) + " vertices");
+  Eigen::VectorXd out(static_cast<int>(origin.size()));
+  for (size_t i = 0; i < origin.size(); ++i) out[static_cast<int>(i)] = w[origin[i]];
+  return out;
 }
 
 int run_map(const MapOptions& o) {
@@ -70,7 +97,7 @@ int run_map(const MapOptions& o) {
   }
 
   conformal::ConformalOptions co;
-  co.tolerance = o.tolerance;
+  co.tolerance = o.tolerance > 0 ? o.tolerance : 1e-7;
   co.max_iterations = o.max_iterations;
   if (o.center >= 0) co.center_vertex = clean_index(o.center, "center vertex");
   if (o.boundary_marker >= 0) co.boundary_vertex = clean_index(o.boundary_marker, "boundary marker");
@@ -81,8 +108,23 @@ int run_map(const MapOptions& o) {
                                            clean_index(o.markers[2], "marker")};
   }
   auto t1 = std::chrono::steady_clock::now();
-  conformal::ConformalMap map = o.domain == "disk" ? conformal::map_to_disk(surface, co)
-                                                   : conformal::map_to_sphere(surface, co);
+  conformal::ConformalMap map;
+  std::optional<omt::AreaPreservingMap> ap;
+  if (o.method == "conformal") {
+    map = o.domain == "disk" ? conformal::map_to_disk(surface, co) : conformal::map_to_sphere(surface, co);
+  } else {
+    if (o.domain != "disk")
+      invalid("area-preserving maps onto the sphere are not available yet; use --domain disk (or --cut-hole)");
+    omt::AreaPreservingOptions apo;
+    apo.conformal = co;
+    apo.conformal.tolerance = 1e-7;
+    if (o.tolerance > 0) apo.omt.tolerance = o.tolerance;
+    apo.omt.max_iterations = o.max_iterations;
+    if (!o.weights.empty()) apo.weights = read_weights(o.weights, origin, cm.input_vertices);
+    ap = omt::area_preserving_disk(surface, apo);
+    map = ap->conformal;
+  }
+  const mesh::Vertices& positions = ap ? ap->positions : map.positions;
   double t_map = seconds_since(t1);
   if (!map.converged)
     fail(ErrorCode::kNotConverged,
@@ -91,7 +133,7 @@ int run_map(const MapOptions& o) {
              std::to_string(map.newton_iterations) + " Newton iterations");
 
   auto target = o.domain == "disk" ? quality::Target::kPlane : quality::Target::kSphere;
-  quality::MapQuality q = quality::measure(surface, map.positions, target);
+  quality::MapQuality q = quality::measure(surface, positions, target);
   if (q.flipped_faces > 0 && !o.allow_flips) {
     std::string list;
     for (size_t i = 0; i < q.flipped.size() && i < 8; ++i) list += (i ? ", " : "") + std::to_string(q.flipped[i]);
@@ -100,7 +142,7 @@ int run_map(const MapOptions& o) {
     const int f = q.flipped.front();
     double size = 0;
     for (int k = 0; k < 3; ++k)
-      size = std::max(size, (map.positions.row(surface.F(f, k)) - map.positions.row(surface.F(f, (k + 1) % 3))).norm());
+      size = std::max(size, (positions.row(surface.F(f, k)) - positions.row(surface.F(f, (k + 1) % 3))).norm());
     std::string why;
     if (size < 1e-8) {
       char buf[160];
@@ -113,10 +155,10 @@ int run_map(const MapOptions& o) {
 
   if (!o.output.empty()) {
     if (o.domain == "disk") {
-      mesh::UV uv = map.positions.leftCols(2);
+      mesh::UV uv = positions.leftCols(2);
       mesh::write_mesh_file(o.output, surface, &uv);
     } else {
-      mesh::TriMesh sphere{map.positions, surface.F};
+      mesh::TriMesh sphere{positions, surface.F};
       mesh::write_mesh_file(o.output, sphere);
     }
   }
@@ -137,6 +179,12 @@ int run_map(const MapOptions& o) {
                     {"relaxed_vertices", map.relaxed_vertices},
                     {"lambda_min", map.lambda.minCoeff()},
                     {"lambda_max", map.lambda.maxCoeff()}};
+  if (ap)
+    j["omt"] = {{"newton_iterations", ap->omt.iterations},
+                {"max_relative_area_error", ap->omt.max_relative_error},
+                {"converged", ap->omt.converged},
+                {"factorizations", ap->omt.factorizations},
+                {"relaxed_vertices", ap->relaxed_vertices}};
   j["quality"] = {{"flipped_faces", q.flipped_faces},
                   {"angle_distortion_deg", stats_json(q.angle_distortion_deg)},
                   {"area_distortion_log", stats_json(q.area_distortion_log_abs, "_abs")},
@@ -149,6 +197,9 @@ int run_map(const MapOptions& o) {
     std::printf("%s -> %s (%s): %d vertices, %d Newton iterations, max |K-Kbar| %.2e, %.3f s\n",
                 o.input.path.c_str(), o.domain.c_str(), o.method.c_str(), topo.vertices,
                 map.newton_iterations, map.max_curvature_error, seconds_since(t0));
+    if (ap)
+      std::printf("optimal transport: %d Newton iterations, max relative cell-mass error %.2e\n",
+                  ap->omt.iterations, ap->omt.max_relative_error);
     std::printf("flipped faces %d; angle distortion mean %.3f deg, p95 %.3f, max %.3f; "
                 "|log area ratio| mean %.3f, max %.3f\n",
                 q.flipped_faces, q.angle_distortion_deg.mean, q.angle_distortion_deg.p95,
@@ -166,8 +217,10 @@ void add_map(CLI::App& app, Action& action) {
   CLI::App* cmd = app.add_subcommand("map", "map a surface onto the unit disk or sphere");
   o->input.add_to(cmd);
   cmd->add_option("--domain", o->domain, "disk or sphere")->check(CLI::IsMember({"disk", "sphere"}));
-  cmd->add_option("--method", o->method, "conformal (area-preserving: issue 4)")
-      ->check(CLI::IsMember({"conformal"}));
+  cmd->add_option("--method", o->method, "conformal or area-preserving (disk)")
+      ->check(CLI::IsMember({"conformal", "area-preserving"}));
+  cmd->add_option("--weights", o->weights,
+                  "area-preserving: file of one positive weight per input vertex (region of interest)");
   cmd->add_option("--center", o->center, "disk: interior vertex sent to 0");
   cmd->add_option("--boundary-marker", o->boundary_marker, "disk: boundary vertex sent to 1");
   cmd->add_option("--markers", o->markers, "sphere: three vertices sent to 0, 1, infinity")->delimiter(',');
@@ -176,7 +229,10 @@ void add_map(CLI::App& app, Action& action) {
   cmd->add_option("-o,--output", o->output, "write the mapped mesh (.obj with vt, .ply, .off)");
   cmd->add_flag("--json", o->json, "print one JSON object");
   cmd->add_flag("--allow-flips", o->allow_flips, "write a map even if it folds faces");
-  cmd->add_option("--tolerance", o->tolerance, "max |K - Kbar| (radians)")->check(CLI::PositiveNumber);
+  cmd->add_option("--tolerance", o->tolerance,
+                  "conformal: max |K - Kbar| (radians, default 1e-7); area-preserving: max relative "
+                  "cell-mass error (default 1e-8)")
+      ->check(CLI::PositiveNumber);
   cmd->add_option("--max-iterations", o->max_iterations, "Newton iterations")->check(CLI::PositiveNumber);
   cmd->callback([o, &action] { action = [o] { return run_map(*o); }; });
 }
