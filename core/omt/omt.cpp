@@ -82,18 +82,9 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
     if (r.max_relative_error <= opt.tolerance) break;
     const Eigen::SparseMatrix<double> H = hessian(r.cells, sites, n);
-    // The error is relative per cell, so the Newton system is solved in that metric: rows
-    // scaled by 1/nu_i (the residual GMRES minimizes is then the relative cell-mass change
-    // left unexplained), with P^{-1} = H_kept^{-1} D as the matching right preconditioner.
-    // Unscaled, a 2-norm tolerance lets the smallest cells (nu ratio 1e4 and more) stall.
-    const Eigen::VectorXd inv_nu = nu.tail(n - 1).cwiseInverse();
-    const Eigen::VectorXd rhs = -g.tail(n - 1).cwiseProduct(inv_nu);
-    auto apply = [&](const Eigen::VectorXd& x) { return Eigen::VectorXd((H * x).cwiseProduct(inv_nu)); };
-    auto precondition = [&](const Eigen::VectorXd& x) {
-      return Eigen::VectorXd(llt.solve(Eigen::VectorXd(x.cwiseQuotient(inv_nu))));
-    };
-    // Relative accuracy of the direction: enough for quadratic convergence (forcing term
-    // proportional to the error), never looser than 1e-2.
+    const Eigen::VectorXd rhs = -g.tail(n - 1);
+    auto apply = [&](const Eigen::VectorXd& x) { return Eigen::VectorXd(H * x); };
+    auto precondition = [&](const Eigen::VectorXd& x) { return Eigen::VectorXd(llt.solve(x)); };
     bool accepted = false;
     // Two passes: the direction from the kept factor at the forcing-term accuracy; if no
     // step along it is accepted, once more from a fresh factor solved to 1e-10 (an
