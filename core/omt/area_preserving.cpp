@@ -27,6 +27,7 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
         invalid("the weight of vertex " + std::to_string(v) + " is " + std::to_string(opt.weights[v]) +
                 "; weights must be positive");
   }
+  if (!(opt.t >= 0 && opt.t <= 1)) invalid("t must lie in [0, 1], got " + std::to_string(opt.t));
   AreaPreservingMap out;
   // (1) conformal map phi: S -> D (Alg. 1).
   out.conformal = conformal::map_to_disk(m, opt.conformal);
@@ -48,6 +49,8 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   // (4) tau^{-1} o phi: each vertex goes to the centroid of its cell W_i = tau^{-1}(p_i).
   out.positions = mesh::Vertices::Zero(nv, 3);
   out.positions.leftCols(2) = out.omt.cells.centroid;
+  if (opt.t > 0)  // phi_t = grad u_t o phi_0: (1 - t) c_i + t p_i
+    out.positions.leftCols(2) = (1 - opt.t) * out.positions.leftCols(2) + opt.t * sites;
   // Centroids of neighbouring cells can come out in the wrong order where the conformal map
   // crowds the sites (a fold of the piecewise-linear map through the vertices, though tau
   // itself is a bijection); those faces are repaired locally by the mean-value Tutte

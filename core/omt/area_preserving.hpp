@@ -18,6 +18,8 @@ struct AreaPreservingOptions {
   /// Region-of-interest multipliers of the vertex masses (sec. 6.3), one per vertex, > 0;
   /// empty: all 1. A region with weight 4 gets four times its share of the disk.
   Eigen::VectorXd weights;
+  /// The polar-factorization family phi_t (sec. 3.2.8): 0 = area-preserving, 1 = conformal.
+  double t = 0;
 };
 
 struct AreaPreservingMap {
@@ -31,6 +33,14 @@ struct AreaPreservingMap {
 /// Vertex masses of eq. 3.30: one third of the adjacent face areas.
 Eigen::VectorXd vertex_masses(const mesh::TriMesh& mesh);
 
+/// With options.t > 0, the map phi_t between the area-preserving map phi_0 and the conformal
+/// map phi_1 (sec. 3.2.8): phi_t = grad u_t o phi_0 with u_t = (1 - t) |x|^2 / 2 + t u_1,
+/// where grad u_1 is the OT map (the cell W_i to the site p_i = phi_1(v_i)), so vertex i goes
+/// to (1 - t) c_i + t p_i (McCann's displacement interpolation: for every t the gradient of
+/// a convex function, hence an optimal transport map onto its image). The dissertation's
+/// Minkowski combination of the two potentials has, on the discrete upper envelopes, a
+/// gradient that only takes the values p_i (it would map every vertex onto a site), so the
+/// pointwise convex combination is the discrete form used here; both ends are exact.
 /// Throws Error(kInvalidArgument) for a mesh that is not a disk or bad weights,
 /// Error(kNotConverged) when the conformal map or the transport does not converge.
 AreaPreservingMap area_preserving_disk(const mesh::TriMesh& mesh, const AreaPreservingOptions& options = {});

@@ -198,3 +198,48 @@ TEST(AreaPreserving, DiskMeshesBecomeAreaPreservingWithoutFolds) {
   EXPECT_LT(q.area_distortion_log_abs.mean, 0.25 * qc.area_distortion_log_abs.mean);
   EXPECT_LE(ap.positions.leftCols(2).rowwise().norm().maxCoeff(), 1.0);
 }
+
+TEST(AreaPreserving, PolarFactorizationFamilyRunsFromAreaToAngle) {
+  // phi_0 is the area-preserving map, phi_1 the conformal map; in between, area distortion
+  // grows and angle distortion shrinks monotonically.
+  mesh::TriMesh m = mesh::make_hemisphere(16);
+  double last_area = -1, last_angle = 1e9;
+  for (double t : {0.0, 0.25, 0.5, 0.75, 1.0}) {
+    omt::AreaPreservingOptions o;
+    o.t = t;
+    auto ap = omt::area_preserving_disk(m, o);
+    auto q = quality::measure(m, ap.positions, quality::Target::kPlane);
+    EXPECT_EQ(q.flipped_faces, 0) << t;
+    EXPECT_GT(q.area_distortion_log_abs.mean, last_area) << t;
+    EXPECT_LT(q.angle_distortion_deg.mean, last_angle) << t;
+    last_area = q.area_distortion_log_abs.mean;
+    last_angle = q.angle_distortion_deg.mean;
+    if (t == 1.0) {
+      EXPECT_LT((ap.positions - ap.conformal.positions).cwiseAbs().maxCoeff(), 1e-12);
+    }
+  }
+  omt::AreaPreservingOptions bad;
+  bad.t = 1.5;
+  EXPECT_THROW(omt::area_preserving_disk(m, bad), Error);
+}
+
+TEST(AreaPreserving, RegionWeightsMagnifyTheRegion) {
+  // Weight 4 on the vertices of one half of the hemisphere: that half gets about 4/5 of the
+  // disk instead of 1/2 (sec. 6.3).
+  mesh::TriMesh m = mesh::make_hemisphere(16);
+  omt::AreaPreservingOptions o;
+  o.weights = Eigen::VectorXd::Ones(m.num_vertices());
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if (m.V(v, 0) > 0) o.weights[v] = 4;
+  auto ap = omt::area_preserving_disk(m, o);
+  double in_region = 0, total = 0;
+  for (int i = 0; i < m.num_vertices(); ++i) {
+    total += ap.omt.cells.mass[i];
+    if (m.V(i, 0) > 0) in_region += ap.omt.cells.mass[i];
+  }
+  EXPECT_NEAR(total, std::numbers::pi, 1e-9);
+  EXPECT_GT(in_region / total, 0.75);
+  EXPECT_LT(in_region / total, 0.85);
+  o.weights[3] = -1;
+  EXPECT_THROW(omt::area_preserving_disk(m, o), Error);
+}

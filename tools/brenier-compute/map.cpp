@@ -32,6 +32,7 @@ struct MapOptions {
   bool allow_flips = false;
   double tolerance = 0;  // 0: the method's default (curvature 1e-7 rad; cell mass 1e-8)
   std::string weights;
+  double t = 0;
   int max_iterations = 200;
 };
 
@@ -110,6 +111,8 @@ int run_map(const MapOptions& o) {
   auto t1 = std::chrono::steady_clock::now();
   conformal::ConformalMap map;
   std::optional<omt::AreaPreservingMap> ap;
+  if (o.method == "conformal" && (o.t > 0 || !o.weights.empty()))
+    invalid("--t and --weights apply to --method area-preserving");
   if (o.method == "conformal") {
     map = o.domain == "disk" ? conformal::map_to_disk(surface, co) : conformal::map_to_sphere(surface, co);
   } else {
@@ -120,6 +123,7 @@ int run_map(const MapOptions& o) {
     apo.conformal.tolerance = 1e-7;
     if (o.tolerance > 0) apo.omt.tolerance = o.tolerance;
     apo.omt.max_iterations = o.max_iterations;
+    apo.t = o.t;
     if (!o.weights.empty()) apo.weights = read_weights(o.weights, origin, cm.input_vertices);
     ap = omt::area_preserving_disk(surface, apo);
     map = ap->conformal;
@@ -181,6 +185,7 @@ int run_map(const MapOptions& o) {
                     {"lambda_max", map.lambda.maxCoeff()}};
   if (ap)
     j["omt"] = {{"newton_iterations", ap->omt.iterations},
+                {"t", o.t},
                 {"max_relative_area_error", ap->omt.max_relative_error},
                 {"converged", ap->omt.converged},
                 {"factorizations", ap->omt.factorizations},
@@ -219,6 +224,8 @@ void add_map(CLI::App& app, Action& action) {
   cmd->add_option("--domain", o->domain, "disk or sphere")->check(CLI::IsMember({"disk", "sphere"}));
   cmd->add_option("--method", o->method, "conformal or area-preserving (disk)")
       ->check(CLI::IsMember({"conformal", "area-preserving"}));
+  cmd->add_option("--t", o->t, "area-preserving: the polar-factorization map phi_t, 0 area-preserving .. 1 conformal")
+      ->check(CLI::Range(0.0, 1.0));
   cmd->add_option("--weights", o->weights,
                   "area-preserving: file of one positive weight per input vertex (region of interest)");
   cmd->add_option("--center", o->center, "disk: interior vertex sent to 0");
