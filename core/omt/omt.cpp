@@ -118,7 +118,7 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       // round-off floor.
       for (int halvings = 0; halvings < 30; ++halvings, t *= 0.5) {
         Eigen::VectorXd trial = r.h + t * dh;
-        PowerCells c = power_cells(domain, sites, trial);
+        PowerCells c = power_cells(domain, sites, trial, false);
         if (c.empty_cells > 0 || c.mass.minCoeff() < eps0) continue;
         Eigen::VectorXd gt = c.mass - nu;
         if (gt.norm() <= (1 - 0.5 * t) * gnorm || max_relative(c.mass, nu) <= opt.tolerance) {

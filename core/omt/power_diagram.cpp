@@ -62,8 +62,8 @@ Moments circular_segment(const Vec2& X, const Vec2& Y, double R) {
   return m;
 }
 
-// A convex polygon with, for each edge (corner k -> k+1), the neighbour whose bisector it
-// lies on (-1: the domain's or the bounding box's side).
+// A convex polygon with, for each edge (corner k -> k+1), the slot of the neighbour whose
+// bisector it lies on (-1: the domain's or the bounding box's side).
 struct LabelledPolygon {
   std::vector<Vec2> p;
   std::vector<int> label;
@@ -95,7 +95,7 @@ void clip(LabelledPolygon& P, const Vec2& n, double c, int j, LabelledPolygon& o
 
 struct CellResult {
   Moments m;  // about the site
-  std::vector<std::pair<int, double>> edges;
+  double* slot_length = nullptr;  // per neighbour slot (the polygon labels): its edge length
 };
 
 // Integrates polygon ∩ disk(R) about the local origin c; dual-edge lengths per label.
@@ -143,7 +143,7 @@ void integrate_disk(const LabelledPolygon& P, double R, const Vec2& c, CellResul
     if (ina) q.push_back({a, kCorner});
     if (entry) q.push_back({a + s_in * d, kEntry});
     if (exit) q.push_back({a + s_out * d, kExit});
-    if (P.label[k] >= 0 && s_out > s_in) out.edges.push_back({P.label[k], std::sqrt(d.squaredNorm()) * (s_out - s_in)});
+    if (P.label[k] >= 0 && s_out > s_in) out.slot_length[P.label[k]] += std::sqrt(d.squaredNorm()) * (s_out - s_in);
   }
   Moments& mo = out.m;
   if (q.empty()) {
@@ -179,7 +179,7 @@ void integrate_polygon(const LabelledPolygon& P, const Vec2& c, CellResult& out)
     const Vec2& a = P.p[k];
     const Vec2& b = P.p[(k + 1) % m];
     out.m.add_triangle(a - c, b - c);
-    if (P.label[k] >= 0) out.edges.push_back({P.label[k], (b - a).norm()});
+    if (P.label[k] >= 0) out.slot_length[P.label[k]] += (b - a).norm();
   }
 }
 
@@ -225,13 +225,13 @@ bool Domain::contains(double x, double y, double slack) const {
   return true;
 }
 
-PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::VectorXd& h) {
+PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::VectorXd& h, bool check_distinct) {
   const int n = static_cast<int>(sites.rows());
   if (n == 0) invalid("no sites");
   if (h.size() != n) invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(n) + " sites");
   if (!sites.allFinite() || !h.allFinite()) invalid("sites and heights must be finite");
   // Coincident sites would share one cell: refuse them by name.
-  {
+  if (check_distinct) {
     std::vector<int> order(n);
     for (int i = 0; i < n; ++i) order[i] = i;
     std::sort(order.begin(), order.end(), [&](int a, int b) {
@@ -252,29 +252,35 @@ PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::V
   }
   RT rt;
   rt.insert(wp.begin(), wp.end());
+  // Neighbour lists (CSR) in two passes over the triangulation, without per-site vectors.
   std::vector<int> start(n + 1, 0), nbr;
   std::vector<char> present(n, 0);
-  {
-    std::vector<std::vector<int>> adj(n);
+  for (int pass = 0; pass < 2; ++pass) {
+    std::vector<int> fill;
+    if (pass == 1) {
+      for (int i = 0; i < n; ++i) start[i + 1] += start[i];
+      nbr.resize(start[n]);
+      fill.assign(start.begin(), start.end() - 1);
+    }
     for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) {
       const int i = v->info();
       present[i] = 1;
       if (rt.dimension() == 0) continue;
       auto c = rt.incident_vertices(v), done = c;
       do {
-        if (!rt.is_infinite(c)) adj[i].push_back(c->info());
+        if (rt.is_infinite(c)) continue;
+        if (pass == 0)
+          ++start[i + 1];
+        else
+          nbr[fill[i]++] = c->info();
       } while (++c != done);
     }
-    for (int i = 0; i < n; ++i) start[i + 1] = start[i] + static_cast<int>(adj[i].size());
-    nbr.reserve(start[n]);
-    for (int i = 0; i < n; ++i) nbr.insert(nbr.end(), adj[i].begin(), adj[i].end());
   }
-
   PowerCells out;
   out.mass = Eigen::VectorXd::Zero(n);
   out.centroid = sites;
   out.second_moment = Eigen::VectorXd::Zero(n);
-  std::vector<std::vector<std::pair<int, double>>> cell_edges(n);
+  std::vector<double> slot_length(nbr.size(), 0.0);
   LabelledPolygon start_polygon;
   if (domain.is_disk) {
     const double r = domain.radius;
@@ -296,10 +302,11 @@ PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::V
         const int j = nbr[k];
         const Vec2 yj = sites.row(j);
         // W_i: <x, y_i> + h_i >= <x, y_j> + h_j.
-        clip(P, yi - yj, h[i] - h[j], j, scratch);
+        clip(P, yi - yj, h[i] - h[j], k, scratch);
       }
       if (P.p.size() < 3) continue;
       CellResult cr;
+      cr.slot_length = slot_length.data();
       if (domain.is_disk)
         integrate_disk(P, domain.radius, yi, cr);
       else
@@ -308,13 +315,12 @@ PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::V
       out.mass[i] = cr.m.area;
       out.centroid.row(i) = (yi + cr.m.first / cr.m.area).transpose();
       out.second_moment[i] = cr.m.second;
-      cell_edges[i] = std::move(cr.edges);
     }
   }
   for (int i = 0; i < n; ++i) {
     if (!(out.mass[i] > 0)) ++out.empty_cells;
-    for (auto [j, len] : cell_edges[i])
-      if (i < j && len > 0) out.edges.push_back({i, j, len});
+    for (int k = start[i]; k < start[i + 1]; ++k)
+      if (i < nbr[k] && slot_length[k] > 0) out.edges.push_back({i, nbr[k], slot_length[k]});
   }
   return out;
 }

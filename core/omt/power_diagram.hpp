@@ -46,7 +46,9 @@ struct PowerCells {
 /// Regular_triangulation_2 (exact predicates); each cell is the intersection of the
 /// half-planes of its regular-triangulation neighbours with the domain, integrated
 /// exactly (circular sectors for the disk). Cells are computed in parallel.
-/// Throws Error(kInvalidArgument) for coincident sites or non-finite input.
-PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::VectorXd& h);
+/// Throws Error(kInvalidArgument) for coincident sites (unless check_distinct is false: the
+/// caller has checked them) or non-finite input.
+PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::VectorXd& h,
+                       bool check_distinct = true);
 
 }  // namespace brenier::omt
