@@ -67,9 +67,16 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   }
   // Kitagawa-Merigot-Thibert damping: every cell keeps at least eps0.
   const double eps0 = 0.5 * std::min(nu.minCoeff(), r.cells.mass.minCoeff());
-  if (!(eps0 > 0))
-    invalid(std::to_string(r.cells.empty_cells) +
-            " sites have empty cells at h = 0 (a site outside the domain behind others?); move the sites into the domain");
+  if (!(eps0 > 0)) {
+    int outside = 0;
+    for (int i = 0; i < n; ++i) outside += !domain.contains(sites(i, 0), sites(i, 1), 1e-12);
+    const std::string what = std::to_string(r.cells.empty_cells) + " of " + std::to_string(n) +
+                             " sites have empty Voronoi cells in the domain";
+    if (outside > 0) invalid(what + " (" + std::to_string(outside) + " sites lie outside it; move them in)");
+    // Valid input beyond what doubles resolve: the method's limit, not the user's error.
+    fail(ErrorCode::kNotConverged, what + " (sites crowded closer than double precision resolves, as where a "
+                                          "conformal map compresses a long protrusion)");
+  }
   Eigen::VectorXd g = r.cells.mass - nu;
 
   // The Newton systems are solved by conjugate-gradient-like GMRES preconditioned with the
