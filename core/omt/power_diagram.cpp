@@ -173,14 +173,48 @@ void integrate_disk(const LabelledPolygon& P, double R, const Vec2& c, CellResul
   }
 }
 
-void integrate_polygon(const LabelledPolygon& P, const Vec2& c, CellResult& out) {
+// Polygon integrals about the local origin c, times a constant density.
+void integrate_polygon(const LabelledPolygon& P, const Vec2& c, CellResult& out, double density = 1.0) {
   const size_t m = P.p.size();
+  Moments part;
   for (size_t k = 0; k < m; ++k) {
     const Vec2& a = P.p[k];
     const Vec2& b = P.p[(k + 1) % m];
-    out.m.add_triangle(a - c, b - c);
-    if (P.label[k] >= 0) out.slot_length[P.label[k]] += (b - a).norm();
+    part.add_triangle(a - c, b - c);
+    if (P.label[k] >= 0) out.slot_length[P.label[k]] += density * (b - a).norm();
   }
+  out.m.area += density * part.area;
+  out.m.first += density * part.first;
+  out.m.second += density * part.second;
+}
+
+// Cell polygon P against the piecewise-constant density: P ∩ T for every triangle T of the
+// buckets P's bounding box meets (each once: stamp), integrated with T's density.
+void integrate_density(const LabelledPolygon& P, const DensityMesh& dm, const Vec2& c, int cell_id,
+                       std::vector<int>& stamp, LabelledPolygon& Q, LabelledPolygon& scratch, CellResult& out) {
+  double xmin = P.p[0].x(), xmax = xmin, ymin = P.p[0].y(), ymax = ymin;
+  for (const Vec2& q : P.p) {
+    xmin = std::min(xmin, q.x()), xmax = std::max(xmax, q.x());
+    ymin = std::min(ymin, q.y()), ymax = std::max(ymax, q.y());
+  }
+  auto bx = [&](double x) { return std::clamp(static_cast<int>((x - dm.x0) / dm.cell), 0, dm.nx - 1); };
+  auto by = [&](double y) { return std::clamp(static_cast<int>((y - dm.y0) / dm.cell), 0, dm.ny - 1); };
+  for (int gy = by(ymin); gy <= by(ymax); ++gy)
+    for (int gx = bx(xmin); gx <= bx(xmax); ++gx) {
+      const int b = gy * dm.nx + gx;
+      for (int k = dm.bucket_start[b]; k < dm.bucket_start[b + 1]; ++k) {
+        const int f = dm.bucket_faces[k];
+        if (stamp[f] == cell_id || dm.density[f] == 0) continue;
+        stamp[f] = cell_id;
+        Q = P;
+        for (int e = 0; e < 3 && Q.p.size() >= 3; ++e) {
+          const Vec2 a = dm.vertices.row(dm.faces(f, e)), d = Vec2(dm.vertices.row(dm.faces(f, (e + 1) % 3))) - a;
+          const Vec2 n(-d.y(), d.x());  // inward normal of the counter-clockwise triangle
+          clip(Q, n, -a.dot(n), -1, scratch);
+        }
+        if (Q.p.size() >= 3) integrate_polygon(Q, c, out, dm.density[f]);
+      }
+    }
 }
 
 }  // namespace
@@ -208,7 +242,83 @@ Domain Domain::square(double half) {
   return convex_polygon(p);
 }
 
+Domain Domain::piecewise_constant(const Points& V, const Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor>& F,
+                                  const Eigen::VectorXd& rho) {
+  const int nv = static_cast<int>(V.rows()), nf = static_cast<int>(F.rows());
+  if (nf == 0 || nv < 3) invalid("the density mesh has no triangles");
+  if (rho.size() != nf)
+    invalid("density: " + std::to_string(rho.size()) + " values for " + std::to_string(nf) + " triangles");
+  if (!V.allFinite()) invalid("the density mesh has non-finite vertices");
+  auto dm = std::make_shared<DensityMesh>();
+  dm->vertices = V;
+  dm->faces = F;
+  dm->density = rho;
+  for (int f = 0; f < nf; ++f) {
+    for (int k = 0; k < 3; ++k)
+      if (F(f, k) < 0 || F(f, k) >= nv) invalid("triangle " + std::to_string(f) + " has a vertex out of range");
+    if (!(rho[f] >= 0) || !std::isfinite(rho[f]))
+      invalid("the density of triangle " + std::to_string(f) + " is " + std::to_string(rho[f]) + "; it must be >= 0");
+    Vec2 a = V.row(F(f, 0)), b = V.row(F(f, 1)), c = V.row(F(f, 2));
+    if (cross(b - a, c - a) < 0) std::swap(dm->faces(f, 1), dm->faces(f, 2));  // counter-clockwise
+  }
+  // Convex hull (Andrew's monotone chain), counter-clockwise: the cells' outline.
+  std::vector<int> idx(nv);
+  for (int i = 0; i < nv; ++i) idx[i] = i;
+  std::sort(idx.begin(), idx.end(), [&](int a, int b) { return V(a, 0) < V(b, 0) || (V(a, 0) == V(b, 0) && V(a, 1) < V(b, 1)); });
+  std::vector<int> hull(2 * nv);
+  int k = 0;
+  auto turn = [&](int o, int a, int b) { return cross(Vec2(V.row(a)) - Vec2(V.row(o)), Vec2(V.row(b)) - Vec2(V.row(o))); };
+  for (int i = 0; i < nv; ++i) {
+    while (k >= 2 && turn(hull[k - 2], hull[k - 1], idx[i]) <= 0) --k;
+    hull[k++] = idx[i];
+  }
+  for (int i = nv - 2, lower = k + 1; i >= 0; --i) {
+    while (k >= lower && turn(hull[k - 2], hull[k - 1], idx[i]) <= 0) --k;
+    hull[k++] = idx[i];
+  }
+  if (k - 1 < 3) invalid("the density mesh is degenerate (collinear vertices)");
+  Points corners(k - 1, 2);
+  for (int i = 0; i < k - 1; ++i) corners.row(i) = V.row(hull[i]);
+  Domain d = convex_polygon(corners);
+  // Bucket grid of about one triangle per bucket.
+  double xmin = V.col(0).minCoeff(), xmax = V.col(0).maxCoeff(), ymin = V.col(1).minCoeff(), ymax = V.col(1).maxCoeff();
+  const double side = std::max(xmax - xmin, ymax - ymin);
+  const int g = std::clamp(static_cast<int>(std::sqrt(static_cast<double>(nf))), 1, 4096);
+  dm->x0 = xmin;
+  dm->y0 = ymin;
+  dm->cell = side / g * (1 + 1e-12);
+  dm->nx = dm->ny = g;
+  std::vector<std::pair<int, int>> entries;  // (bucket, face)
+  for (int f = 0; f < nf; ++f) {
+    double fx0 = V(F(f, 0), 0), fx1 = fx0, fy0 = V(F(f, 0), 1), fy1 = fy0;
+    for (int c = 1; c < 3; ++c) {
+      fx0 = std::min(fx0, V(F(f, c), 0)), fx1 = std::max(fx1, V(F(f, c), 0));
+      fy0 = std::min(fy0, V(F(f, c), 1)), fy1 = std::max(fy1, V(F(f, c), 1));
+    }
+    auto bx = [&](double x) { return std::clamp(static_cast<int>((x - dm->x0) / dm->cell), 0, g - 1); };
+    auto by = [&](double y) { return std::clamp(static_cast<int>((y - dm->y0) / dm->cell), 0, g - 1); };
+    for (int gy = by(fy0); gy <= by(fy1); ++gy)
+      for (int gx = bx(fx0); gx <= bx(fx1); ++gx) entries.push_back({gy * g + gx, f});
+  }
+  std::sort(entries.begin(), entries.end());
+  dm->bucket_start.assign(static_cast<size_t>(g) * g + 1, 0);
+  for (auto [b, f] : entries) ++dm->bucket_start[b + 1];
+  for (size_t b = 0; b + 1 < dm->bucket_start.size(); ++b) dm->bucket_start[b + 1] += dm->bucket_start[b];
+  for (auto [b, f] : entries) dm->bucket_faces.push_back(f);
+  d.density = dm;
+  return d;
+}
+
 double Domain::area() const {
+  if (density) {
+    double m = 0;
+    for (int f = 0; f < density->faces.rows(); ++f) {
+      Vec2 a = density->vertices.row(density->faces(f, 0)), b = density->vertices.row(density->faces(f, 1)),
+           c = density->vertices.row(density->faces(f, 2));
+      m += density->density[f] * 0.5 * cross(b - a, c - a);
+    }
+    return m;
+  }
   if (is_disk) return std::numbers::pi * radius * radius;
   double a = 0;
   for (int k = 0; k < polygon.rows(); ++k) a += 0.5 * cross(polygon.row(k), polygon.row((k + 1) % polygon.rows()));
@@ -292,7 +402,8 @@ PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::V
 
 #pragma omp parallel
   {
-    LabelledPolygon P, scratch;
+    LabelledPolygon P, scratch, Q;
+    std::vector<int> stamp(domain.density ? domain.density->faces.rows() : 0, -1);
 #pragma omp for schedule(dynamic, 256)
     for (int i = 0; i < n; ++i) {
       if (!present[i]) continue;
@@ -307,7 +418,9 @@ PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::V
       if (P.p.size() < 3) continue;
       CellResult cr;
       cr.slot_length = slot_length.data();
-      if (domain.is_disk)
+      if (domain.density)
+        integrate_density(P, *domain.density, yi, i, stamp, Q, scratch, cr);
+      else if (domain.is_disk)
         integrate_disk(P, domain.radius, yi, cr);
       else
         integrate_polygon(P, yi, cr);

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <memory>
 #include <vector>
 
 namespace brenier::omt {
@@ -12,16 +13,37 @@ using Points = Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>;
 
 /// The source domain Omega with the uniform density: a disk of radius R centred at the
 /// origin (cells clipped with exact circular arcs) or a convex polygon.
+/// Triangles of a piecewise-constant source density (the conformal image of a mesh, say),
+/// with a bucket grid to find those a cell overlaps.
+struct DensityMesh {
+  Points vertices;
+  Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor> faces;
+  Eigen::VectorXd density;  // per face, >= 0
+  // Grid over the triangles' bounding box: bucket b holds the faces overlapping it.
+  double x0 = 0, y0 = 0, cell = 1;
+  int nx = 1, ny = 1;
+  std::vector<int> bucket_start, bucket_faces;
+};
+
 struct Domain {
   bool is_disk = true;
   double radius = 1.0;
   Points polygon;  // counter-clockwise corners when !is_disk
+  std::shared_ptr<const DensityMesh> density;  // null: uniform density 1
 
   static Domain unit_disk();
   /// Throws Error(kInvalidArgument) unless the corners form a convex counter-clockwise
   /// polygon of positive area.
   static Domain convex_polygon(const Points& corners);
   static Domain square(double half_side = 1.0);
+  /// The density `density[f]` on each triangle of (vertices, faces), zero elsewhere; the
+  /// cells are clipped by the convex hull of the vertices, so the triangles should cover a
+  /// convex region (as the conformal image of a disk mesh does: its boundary is inscribed in
+  /// the circle). Integrals over cell ∩ triangle are exact. Throws on bad input.
+  static Domain piecewise_constant(const Points& vertices,
+                                   const Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor>& faces,
+                                   const Eigen::VectorXd& density);
+  /// Total mass of the source measure (the area for the uniform density).
   double area() const;
   bool contains(double x, double y, double slack = 0) const;
 };

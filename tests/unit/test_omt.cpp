@@ -243,3 +243,73 @@ TEST(AreaPreserving, RegionWeightsMagnifyTheRegion) {
   o.weights[3] = -1;
   EXPECT_THROW(omt::area_preserving_disk(m, o), Error);
 }
+
+TEST(PiecewiseConstantDensity, ConstantDensityOnTwoTrianglesIsTheSquare) {
+  Points V(4, 2);
+  V << -1, -1, 1, -1, 1, 1, -1, 1;
+  Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor> F(2, 3);
+  F << 0, 1, 2, 0, 2, 3;
+  Domain tri = Domain::piecewise_constant(V, F, Eigen::VectorXd::Ones(2));
+  EXPECT_NEAR(tri.area(), 4.0, 1e-14);
+  Points y = random_in_disk(300, 11);
+  Eigen::VectorXd h = Eigen::VectorXd::Random(300) * 0.05;
+  auto a = omt::power_cells(tri, y, h), b = omt::power_cells(Domain::square(1.0), y, h);
+  EXPECT_LT((a.mass - b.mass).cwiseAbs().maxCoeff(), 1e-13);
+  EXPECT_LT((a.centroid - b.centroid).cwiseAbs().maxCoeff(), 1e-12);
+  ASSERT_EQ(a.edges.size(), b.edges.size());
+  for (size_t k = 0; k < a.edges.size(); ++k) EXPECT_NEAR(a.edges[k].length, b.edges[k].length, 1e-13);
+}
+
+TEST(PiecewiseConstantDensity, StepDensityMovesTheBoundaryToItsClosedForm) {
+  // Density 3 on x < 0 and 1 on x > 0 over [-1, 1]^2 (total 8); two level sites with equal
+  // masses split it at x = b with 3 * 2 * (b + 1) = 4: b = -1/3, so the left cell's centroid
+  // is at x = -2/3.
+  Points V(6, 2);
+  V << -1, -1, 0, -1, 1, -1, -1, 1, 0, 1, 1, 1;
+  Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor> F(4, 3);
+  F << 0, 1, 4, 0, 4, 3, 1, 2, 5, 1, 5, 4;
+  Eigen::VectorXd rho(4);
+  rho << 3, 3, 1, 1;
+  Domain d = Domain::piecewise_constant(V, F, rho);
+  EXPECT_NEAR(d.area(), 8.0, 1e-14);
+  Points y(2, 2);
+  y << -0.5, 0.1, 0.5, -0.1;
+  auto r = omt::solve_omt(d, y, Eigen::VectorXd::Ones(2));
+  ASSERT_TRUE(r.converged) << r.max_relative_error;  // sites off level: a tilted boundary
+  EXPECT_NEAR(r.cells.mass[0], 4.0, 1e-8);
+  EXPECT_NEAR(r.cells.mass.sum(), 8.0, 1e-12);
+  Points level(2, 2);
+  level << -0.5, 0, 0.5, 0;
+  auto s = omt::solve_omt(d, level, Eigen::VectorXd::Ones(2));
+  ASSERT_TRUE(s.converged);
+  EXPECT_NEAR(s.cells.centroid(0, 0), -2.0 / 3.0, 1e-8);
+  // Right cell: [-1/3, 0] with density 3 (mass 2, centroid -1/6) and [0, 1] with density 1
+  // (mass 2, centroid 1/2): centroid 1/6.
+  EXPECT_NEAR(s.cells.centroid(1, 0), 1.0 / 6.0, 1e-8);
+}
+
+TEST(PiecewiseConstantDensity, ASurfaceTransportedOntoItselfBarelyMoves) {
+  // The surface measure pushed to the disk by the conformal map (density = surface area /
+  // image area per triangle) against the same surface's vertex masses at the image
+  // vertices: the optimal map moves each site's mass only within its own neighbourhood.
+  mesh::TriMesh m = mesh::make_hemisphere(14);
+  conformal::ConformalMap c = conformal::map_to_disk(m);
+  Points V = c.positions.leftCols(2);
+  mesh::TriMesh image{c.positions, m.F};
+  Eigen::VectorXd rho = mesh::face_areas(m).cwiseQuotient(mesh::face_areas(image));
+  Domain d = Domain::piecewise_constant(V, m.F, rho);
+  EXPECT_NEAR(d.area(), mesh::face_areas(m).sum(), 1e-12);
+  auto r = omt::solve_omt(d, V, omt::vertex_masses(m));
+  ASSERT_TRUE(r.converged) << r.max_relative_error;
+  EXPECT_EQ(r.cells.empty_cells, 0);
+  // Mean displacement: sqrt(cost / mass), far below the mean edge length in the disk.
+  double cost = r.cells.second_moment.sum(), mass = r.cells.mass.sum();
+  double edge = 0;
+  for (int f = 0; f < m.num_faces(); ++f) edge += (V.row(m.F(f, 0)) - V.row(m.F(f, 1))).norm() / m.num_faces();
+  EXPECT_LT(std::sqrt(cost / mass), 0.5 * edge);
+  // The uniform density instead (ignoring the conformal factor) must move mass much further.
+  auto u = omt::solve_omt(Domain::piecewise_constant(V, m.F, Eigen::VectorXd::Ones(m.num_faces())), V,
+                          omt::vertex_masses(m));
+  ASSERT_TRUE(u.converged);
+  EXPECT_GT(std::sqrt(u.cells.second_moment.sum() / u.cells.mass.sum()), 2 * std::sqrt(cost / mass));
+}
