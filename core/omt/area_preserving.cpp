@@ -40,7 +40,14 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   Eigen::VectorXd nu = vertex_masses(m);
   if (opt.weights.size() != 0) nu = nu.cwiseProduct(opt.weights);
   // (3) the OMT map tau from the uniform disk to (p, nu) (Alg. 2).
-  out.omt = solve_omt(Domain::unit_disk(), sites, nu, opt.omt);
+  // The sites are our conformal map's, not the caller's: where it crowds vertices below
+  // double precision (coincident sites), that is the method's limit, not bad input.
+  try {
+    out.omt = solve_omt(Domain::unit_disk(), sites, nu, opt.omt);
+  } catch (const Error& e) {
+    if (e.code() != ErrorCode::kInvalidArgument) throw;
+    fail(ErrorCode::kNotConverged, std::string("the conformal map crowds vertices below double precision: ") + e.what());
+  }
   if (!out.omt.converged)
     fail(ErrorCode::kNotConverged,
          "the optimal transport did not converge: max relative cell-mass error " +
