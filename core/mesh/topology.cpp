@@ -22,44 +22,36 @@ const char* domain_name(Domain d) { return d == Domain::kDisk ? "disk" : "sphere
 
 namespace {
 
-// Sorted directed half-edges (min, max, direction) to count edges and find boundary ones.
-struct HalfEdgeKey {
-  int a, b;  // a < b
-  int from, to;
-};
+std::vector<std::vector<int>> loops_from(const std::vector<EdgeUse>& h);
 
-// Ordered by (a, b): a counting sort on a (linear), then each bucket -- a vertex's few
-// higher neighbours -- by insertion sort; several times faster than a comparison sort of
-// every half-edge on large meshes.
-std::vector<HalfEdgeKey> sorted_half_edges(const Faces& F) {
+}  // namespace
+
+std::vector<EdgeUse> sorted_edge_uses(const Faces& F) {
   int nv = 0;
   for (int f = 0; f < F.rows(); ++f) nv = std::max({nv, F(f, 0) + 1, F(f, 1) + 1, F(f, 2) + 1});
   std::vector<int> start(static_cast<size_t>(nv) + 1, 0);
   for (int f = 0; f < F.rows(); ++f)
     for (int k = 0; k < 3; ++k) ++start[std::min(F(f, k), F(f, (k + 1) % 3)) + 1];
   for (int v = 0; v < nv; ++v) start[v + 1] += start[v];
-  std::vector<HalfEdgeKey> h(static_cast<size_t>(F.rows()) * 3);
+  std::vector<EdgeUse> h(static_cast<size_t>(F.rows()) * 3);
   std::vector<int> fill(start.begin(), start.end() - 1);
-  for (int f = 0; f < F.rows(); ++f)
+  for (int f = 0; f < F.rows(); ++f)  // faces in order: each bucket is already by face
     for (int k = 0; k < 3; ++k) {
       int u = F(f, k), v = F(f, (k + 1) % 3);
-      h[fill[std::min(u, v)]++] = {std::min(u, v), std::max(u, v), u, v};
+      h[fill[std::min(u, v)]++] = {std::min(u, v), std::max(u, v), f, u < v};
     }
+  auto before = [](const EdgeUse& x, const EdgeUse& y) { return x.b < y.b || (x.b == y.b && x.face < y.face); };
   for (int v = 0; v < nv; ++v)
     for (int i = start[v] + 1; i < start[v + 1]; ++i)
-      for (int j = i; j > start[v] && h[j].b < h[j - 1].b; --j) std::swap(h[j], h[j - 1]);
+      for (int j = i; j > start[v] && before(h[j], h[j - 1]); --j) std::swap(h[j], h[j - 1]);
   return h;
 }
-
-std::vector<std::vector<int>> loops_from(const std::vector<HalfEdgeKey>& h);
-
-}  // namespace
 
 Topology compute_topology(const TriMesh& mesh) {
   Topology t;
   t.vertices = mesh.num_vertices();
   t.faces = mesh.num_faces();
-  auto h = sorted_half_edges(mesh.F);
+  auto h = sorted_edge_uses(mesh.F);
   std::vector<int> used(t.vertices, 0);
   for (int f = 0; f < mesh.F.rows(); ++f)
     for (int k = 0; k < 3; ++k) used[mesh.F(f, k)] = 1;
@@ -119,11 +111,11 @@ Topology compute_topology(const TriMesh& mesh) {
   return t;
 }
 
-std::vector<std::vector<int>> boundary_loops(const TriMesh& mesh) { return loops_from(sorted_half_edges(mesh.F)); }
+std::vector<std::vector<int>> boundary_loops(const TriMesh& mesh) { return loops_from(sorted_edge_uses(mesh.F)); }
 
 namespace {
 
-std::vector<std::vector<int>> loops_from(const std::vector<HalfEdgeKey>& h) {
+std::vector<std::vector<int>> loops_from(const std::vector<EdgeUse>& h) {
   // Boundary half-edges keyed by their start vertex. At a manifold boundary vertex exactly
   // one leaves; at a vertex where two boundary loops touch, several do, and each walk takes
   // the next unused one.
@@ -133,8 +125,9 @@ std::vector<std::vector<int>> loops_from(const std::vector<HalfEdgeKey>& h) {
     size_t j = i;
     while (j < h.size() && h[j].a == h[i].a && h[j].b == h[i].b) ++j;
     if (j - i == 1) {
-      out[h[i].from].push_back(static_cast<int>(bnd.size()));
-      bnd.push_back({h[i].from, h[i].to});
+      const int from = h[i].a_to_b ? h[i].a : h[i].b, to = h[i].a_to_b ? h[i].b : h[i].a;
+      out[from].push_back(static_cast<int>(bnd.size()));
+      bnd.push_back({from, to});
     }
     i = j;
   }

@@ -34,6 +34,16 @@ struct Topology {
 /// meaningful for manifold meshes (class is kOther otherwise).
 Topology compute_topology(const TriMesh& mesh);
 
+/// One face's use of an undirected edge (a < b).
+struct EdgeUse {
+  int a, b;
+  int face;
+  bool a_to_b;  // the face traverses a -> b
+};
+/// All 3F edge uses, ordered by (a, b, face): a counting sort on a, then each vertex's few
+/// uses by insertion sort -- linear in practice. Indices must be >= 0.
+std::vector<EdgeUse> sorted_edge_uses(const Faces& F);
+
 /// Boundary loops as vertex cycles, each traversed in the direction of its faces' winding
 /// (for a counter-clockwise disk: counter-clockwise), longest loop first. Precondition: an
 /// edge-manifold mesh.

@@ -86,27 +86,6 @@ struct UnionFind {
   void unite(int a, int b) { parent[find(a)] = find(b); }
 };
 
-// Undirected edges with the faces on them, from sorting all 3F half-edges.
-struct EdgeUse {
-  int a, b;     // a < b
-  int face;
-  bool a_to_b;  // the face traverses a -> b
-};
-
-std::vector<EdgeUse> edge_uses(const Faces& F) {
-  std::vector<EdgeUse> uses;
-  uses.reserve(static_cast<size_t>(F.rows()) * 3);
-  for (int f = 0; f < F.rows(); ++f)
-    for (int k = 0; k < 3; ++k) {
-      int u = F(f, k), v = F(f, (k + 1) % 3);
-      uses.push_back({std::min(u, v), std::max(u, v), f, u < v});
-    }
-  std::sort(uses.begin(), uses.end(), [](const EdgeUse& x, const EdgeUse& y) {
-    return std::tie(x.a, x.b, x.face) < std::tie(y.a, y.b, y.face);
-  });
-  return uses;
-}
-
 // Checks that need only indices and geometry of a TriMesh with indices in range.
 void check_trimesh(CleanMesh& cm, const CleanOptions& opt) {
   TriMesh& m = cm.mesh;
@@ -177,7 +156,7 @@ void check_trimesh(CleanMesh& cm, const CleanOptions& opt) {
   }
 
   // Edges: duplicate faces, non-manifold edges, orientation.
-  std::vector<EdgeUse> uses = edge_uses(m.F);
+  std::vector<EdgeUse> uses = sorted_edge_uses(m.F);
   int64_t nonmanifold = 0, same_dir = 0;
   std::string first_nm, first_dir;
   for (size_t i = 0; i < uses.size();) {
