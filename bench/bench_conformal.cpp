@@ -84,6 +84,34 @@ bool cgal_dcm(const mesh::TriMesh& m, mesh::Vertices& out, double& secs) {
   return true;
 }
 
+// The faces `faces` of `m` with the vertices they use, renumbered in order of first use.
+mesh::TriMesh keep_faces(const mesh::TriMesh& m, const std::vector<int>& faces) {
+  std::vector<int> id(m.num_vertices(), -1);
+  mesh::TriMesh out;
+  out.F.resize(static_cast<int>(faces.size()), 3);
+  int n = 0;
+  for (size_t i = 0; i < faces.size(); ++i)
+    for (int k = 0; k < 3; ++k) {
+      int& v = id[m.F(faces[i], k)];
+      if (v < 0) v = n++;
+      out.F(static_cast<int>(i), k) = v;
+    }
+  out.V.resize(n, 3);
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if (id[v] >= 0) out.V.row(id[v]) = m.V.row(v);
+  return out;
+}
+
+// Throws unless `m` is a valid topological disk (the benchmark must not time something else).
+const mesh::TriMesh& require_disk(const mesh::TriMesh& m, const char* what) {
+  mesh::Report report = mesh::validate(m);
+  if (report.has_errors()) throw std::runtime_error(std::string(what) + ": " + report.first_error()->message);
+  mesh::Topology t = mesh::compute_topology(m);
+  if (t.mesh_class != mesh::MeshClass::kDisk)
+    throw std::runtime_error(std::string(what) + " is not a disk (" + std::to_string(t.boundary_loops) + " boundary loops)");
+  return m;
+}
+
 // A real-mesh disk of at least `count` vertices cut from the disk `m`: the faces reached first
 // by a breadth-first search over shared edges from the face at the default centre vertex;
 // the pockets the search leaves at its rim (unreached faces not connected to the rest of
@@ -138,23 +166,11 @@ mesh::TriMesh patch(const mesh::TriMesh& m, int count) {
     }
   }
   const int outer = static_cast<int>(std::max_element(size.begin(), size.end()) - size.begin());
-  std::vector<int> faces, id(m.num_vertices(), -1);
+  std::vector<int> faces;
   for (int f = 0; f < nf; ++f)
     if (in[f] || comp[f] != outer) faces.push_back(f);
-  mesh::TriMesh out;
-  out.F.resize(static_cast<int>(faces.size()), 3);
-  int n = 0;
-  for (size_t i = 0; i < faces.size(); ++i)
-    for (int k = 0; k < 3; ++k) {
-      int& v = id[m.F(faces[i], k)];
-      if (v < 0) v = n++;
-      out.F(static_cast<int>(i), k) = v;
-    }
-  out.V.resize(n, 3);
-  for (int v = 0; v < m.num_vertices(); ++v)
-    if (id[v] >= 0) out.V.row(id[v]) = m.V.row(v);
-  if (mesh::validate(out).has_errors() || mesh::compute_topology(out).mesh_class != mesh::MeshClass::kDisk)
-    throw std::runtime_error(std::string("the patch is not a valid disk: ") + (mesh::validate(out).has_errors() ? mesh::validate(out).first_error()->message : std::to_string(mesh::compute_topology(out).boundary_loops) + " loops"));
+  mesh::TriMesh out = keep_faces(m, faces);
+  require_disk(out, "the patch");
   return out;
 }
 
@@ -165,25 +181,12 @@ mesh::TriMesh peel(mesh::TriMesh m, int count) {
     std::vector<char> rim(m.num_vertices(), 0);
     for (const auto& loop : mesh::boundary_loops(m))
       for (int v : loop) rim[v] = 1;
-    std::vector<int> faces, id(m.num_vertices(), -1);
+    std::vector<int> faces;
     for (int f = 0; f < m.num_faces(); ++f)
       if (!rim[m.F(f, 0)] && !rim[m.F(f, 1)] && !rim[m.F(f, 2)]) faces.push_back(f);
-    mesh::TriMesh out;
-    out.F.resize(static_cast<int>(faces.size()), 3);
-    int n = 0;
-    for (size_t i = 0; i < faces.size(); ++i)
-      for (int k = 0; k < 3; ++k) {
-        int& v = id[m.F(faces[i], k)];
-        if (v < 0) v = n++;
-        out.F(static_cast<int>(i), k) = v;
-      }
-    out.V.resize(n, 3);
-    for (int v = 0; v < m.num_vertices(); ++v)
-      if (id[v] >= 0) out.V.row(id[v]) = m.V.row(v);
-    m = std::move(out);
+    m = keep_faces(m, faces);
   }
-  if (mesh::validate(m).has_errors() || mesh::compute_topology(m).mesh_class != mesh::MeshClass::kDisk)
-    throw std::runtime_error("the peeled mesh is not a valid disk");
+  require_disk(m, "the peeled mesh");
   return m;
 }
 
