@@ -4,6 +4,7 @@
 #include <Eigen/SparseCore>
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <string>
 
 #include "common/error.hpp"
@@ -59,7 +60,8 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   // Alg. 2 starts from the Voronoi diagram ("h = 0" in the power-distance convention); with
   // u_h = max <x, y_i> + h_i that is h_i = -|y_i|^2 / 2 (equal power weights).
   r.h = -0.5 * sites.rowwise().squaredNorm();
-  r.cells = power_cells(domain, sites, r.h);
+  const PowerDiagrams diagram(domain, sites);
+  r.cells = diagram(r.h);
   r.max_relative_error = max_relative(r.cells.mass, nu);
   if (n == 1) {
     r.converged = true;
@@ -125,12 +127,12 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       // round-off floor.
       for (int halvings = 0; halvings < 30; ++halvings, t *= 0.5) {
         Eigen::VectorXd trial = r.h + t * dh;
-        PowerCells c = power_cells(domain, sites, trial, false);
-        if (c.empty_cells > 0 || c.mass.minCoeff() < eps0) continue;
-        Eigen::VectorXd gt = c.mass - nu;
-        if (gt.norm() <= (1 - 0.5 * t) * gnorm || max_relative(c.mass, nu) <= opt.tolerance) {
+        std::optional<PowerCells> c = diagram.if_none_hidden(trial);
+        if (!c || c->empty_cells > 0 || c->mass.minCoeff() < eps0) continue;
+        Eigen::VectorXd gt = c->mass - nu;
+        if (gt.norm() <= (1 - 0.5 * t) * gnorm || max_relative(c->mass, nu) <= opt.tolerance) {
           r.h = std::move(trial);
-          r.cells = std::move(c);
+          r.cells = std::move(*c);
           g = std::move(gt);
           accepted = true;
           break;

@@ -5,6 +5,11 @@
 #include <CGAL/Regular_triangulation_face_base_2.h>
 #include <CGAL/Regular_triangulation_vertex_base_2.h>
 #include <CGAL/Triangulation_vertex_base_with_info_2.h>
+#include <CGAL/Spatial_sort_traits_adapter_2.h>
+#include <CGAL/hilbert_sort.h>
+#include <boost/property_map/function_property_map.hpp>
+
+#include <functional>
 
 #include <algorithm>
 #include <cmath>
@@ -98,13 +103,15 @@ struct CellResult {
   double* slot_length = nullptr;  // per neighbour slot (the polygon labels): its edge length
 };
 
-// Integrates polygon ∩ disk(R) about the local origin c; dual-edge lengths per label.
-void integrate_disk(const LabelledPolygon& P, double R, const Vec2& c, CellResult& out) {
+enum BoundaryKind { kCorner, kEntry, kExit };
+using DiskBoundary = std::vector<std::pair<Vec2, BoundaryKind>>;
+
+// Integrates polygon ∩ disk(R) about the local origin c; dual-edge lengths per label. `q`
+// is scratch (the boundary of P ∩ D in order: corners inside, entry and exit points).
+void integrate_disk(const LabelledPolygon& P, double R, const Vec2& c, DiskBoundary& q, CellResult& out) {
   const double R2 = R * R;
   const size_t m = P.p.size();
-  // The boundary of P ∩ D in order: corners inside, entry and exit points.
-  enum Kind { kCorner, kEntry, kExit };
-  std::vector<std::pair<Vec2, Kind>> q;
+  q.clear();
   for (size_t k = 0; k < m; ++k) {
     const Vec2& a = P.p[k];
     const Vec2& b = P.p[(k + 1) % m];
@@ -335,57 +342,85 @@ bool Domain::contains(double x, double y, double slack) const {
   return true;
 }
 
-PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::VectorXd& h, bool check_distinct) {
-  const int n = static_cast<int>(sites.rows());
+PowerDiagrams::PowerDiagrams(Domain domain, Points sites, bool check_distinct)
+    : domain_(std::move(domain)), sites_(std::move(sites)) {
+  const int n = static_cast<int>(sites_.rows());
   if (n == 0) invalid("no sites");
-  if (h.size() != n) invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(n) + " sites");
-  if (!sites.allFinite() || !h.allFinite()) invalid("sites and heights must be finite");
+  if (!sites_.allFinite()) invalid("sites must be finite");
   // Coincident sites would share one cell: refuse them by name.
   if (check_distinct) {
     std::vector<int> order(n);
     for (int i = 0; i < n; ++i) order[i] = i;
     std::sort(order.begin(), order.end(), [&](int a, int b) {
-      return sites(a, 0) < sites(b, 0) || (sites(a, 0) == sites(b, 0) && sites(a, 1) < sites(b, 1));
+      return sites_(a, 0) < sites_(b, 0) || (sites_(a, 0) == sites_(b, 0) && sites_(a, 1) < sites_(b, 1));
     });
     for (int k = 1; k < n; ++k)
-      if (sites.row(order[k]) == sites.row(order[k - 1]))
+      if (sites_.row(order[k]) == sites_.row(order[k - 1]))
         invalid("sites " + std::to_string(std::min(order[k], order[k - 1])) + " and " +
                 std::to_string(std::max(order[k], order[k - 1])) + " coincide");
   }
+  // The sites never move between diagrams (only their heights do), so their Hilbert order
+  // -- which makes each insertion's point location walk a step or two -- is computed once.
+  order_.resize(n);
+  for (int i = 0; i < n; ++i) order_[i] = i;
+  using Map = boost::function_property_map<std::function<K::Point_2(int)>, int, K::Point_2>;
+  std::function<K::Point_2(int)> at = [this](int i) { return K::Point_2(sites_(i, 0), sites_(i, 1)); };
+  CGAL::Spatial_sort_traits_adapter_2<K, Map> traits(boost::make_function_property_map<int, K::Point_2>(at));
+  // Plain Hilbert order (no random rounds of CGAL's spatial_sort): deterministic.
+  CGAL::hilbert_sort(order_.begin(), order_.end(), traits);
+}
+
+PowerCells PowerDiagrams::operator()(const Eigen::VectorXd& h) const { return *build(h, false); }
+
+std::optional<PowerCells> PowerDiagrams::if_none_hidden(const Eigen::VectorXd& h) const { return build(h, true); }
+
+std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fail_if_hidden) const {
+  const Domain& domain = domain_;
+  const Points& sites = sites_;
+  const int n = static_cast<int>(sites.rows());
+  if (h.size() != n) invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(n) + " sites");
+  if (!h.allFinite()) invalid("heights must be finite");
   // Regular triangulation of the weighted points (y_i, |y_i|^2 + 2 h_i): its adjacency is
-  // the power diagram's; hidden points have empty cells.
-  std::vector<std::pair<WP, int>> wp;
-  wp.reserve(n);
-  for (int i = 0; i < n; ++i) {
-    K::Point_2 y(sites(i, 0), sites(i, 1));
-    wp.push_back({WP(y, sites.row(i).squaredNorm() + 2 * h[i]), i});
-  }
+  // the power diagram's; hidden points have empty cells. A hidden point stays hidden as
+  // more are inserted (the lifted lower hull only descends), so a caller that rejects any
+  // empty cell can stop at the first one found.
   RT rt;
-  rt.insert(wp.begin(), wp.end());
-  // Neighbour lists (CSR) in two passes over the triangulation, without per-site vectors.
+  RT::Face_handle hint;
+  const int check_every = std::max(256, n / 64);
+  for (int k = 0; k < n; ++k) {
+    const int i = order_[k];
+    const WP p(K::Point_2(sites(i, 0), sites(i, 1)), sites.row(i).squaredNorm() + 2 * h[i]);
+    RT::Vertex_handle v = rt.insert(p, hint);
+    if (v == RT::Vertex_handle()) continue;
+    v->info() = i;
+    hint = v->face();
+    if (fail_if_hidden && (k + 1) % check_every == 0 && rt.number_of_hidden_vertices() > 0) return std::nullopt;
+  }
+  if (fail_if_hidden && rt.number_of_hidden_vertices() > 0) return std::nullopt;
+  // Neighbour lists (CSR) from one pass over the triangulation's edges.
   std::vector<int> start(n + 1, 0), nbr;
   std::vector<char> present(n, 0);
-  for (int pass = 0; pass < 2; ++pass) {
-    std::vector<int> fill;
-    if (pass == 1) {
-      for (int i = 0; i < n; ++i) start[i + 1] += start[i];
-      nbr.resize(start[n]);
-      fill.assign(start.begin(), start.end() - 1);
-    }
-    for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) {
-      const int i = v->info();
-      present[i] = 1;
-      if (rt.dimension() == 0) continue;
-      auto c = rt.incident_vertices(v), done = c;
-      do {
-        if (rt.is_infinite(c)) continue;
-        if (pass == 0)
-          ++start[i + 1];
-        else
-          nbr[fill[i]++] = c->info();
-      } while (++c != done);
+  for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) present[v->info()] = 1;
+  std::vector<std::pair<int, int>> adjacent;
+  adjacent.reserve(3 * static_cast<size_t>(n));
+  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e) {
+    const int a = e->first->vertex(RT::cw(e->second))->info(), b = e->first->vertex(RT::ccw(e->second))->info();
+    adjacent.emplace_back(a, b);
+    ++start[a + 1];
+    ++start[b + 1];
+  }
+  for (int i = 0; i < n; ++i) start[i + 1] += start[i];
+  nbr.resize(start[n]);
+  {
+    std::vector<int> fill(start.begin(), start.end() - 1);
+    for (auto [a, b] : adjacent) {
+      nbr[fill[a]++] = b;
+      nbr[fill[b]++] = a;
     }
   }
+  // Each cell clips by its neighbours in index order, so the round-off of a cell does not
+  // depend on how the triangulation was built or traversed (same input, same bits).
+  for (int i = 0; i < n; ++i) std::sort(nbr.begin() + start[i], nbr.begin() + start[i + 1]);
   PowerCells out;
   out.mass = Eigen::VectorXd::Zero(n);
   out.centroid = sites;
@@ -403,6 +438,7 @@ PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::V
 #pragma omp parallel
   {
     LabelledPolygon P, scratch, Q;
+    DiskBoundary q;
     std::vector<int> stamp(domain.density ? domain.density->faces.rows() : 0, -1);
 #pragma omp for schedule(dynamic, 256)
     for (int i = 0; i < n; ++i) {
@@ -421,7 +457,7 @@ PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::V
       if (domain.density)
         integrate_density(P, *domain.density, yi, i, stamp, Q, scratch, cr);
       else if (domain.is_disk)
-        integrate_disk(P, domain.radius, yi, cr);
+        integrate_disk(P, domain.radius, yi, q, cr);
       else
         integrate_polygon(P, yi, cr);
       if (!(cr.m.area > 0)) continue;
@@ -436,6 +472,12 @@ PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::V
       if (i < nbr[k] && slot_length[k] > 0) out.edges.push_back({i, nbr[k], slot_length[k]});
   }
   return out;
+}
+
+PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::VectorXd& h, bool check_distinct) {
+  if (h.size() != sites.rows())
+    invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(sites.rows()) + " sites");
+  return PowerDiagrams(domain, sites, check_distinct)(h);
 }
 
 }  // namespace brenier::omt

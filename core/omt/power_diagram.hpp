@@ -5,6 +5,7 @@
 
 #include <Eigen/Core>
 #include <memory>
+#include <optional>
 #include <vector>
 
 namespace brenier::omt {
@@ -72,5 +73,26 @@ struct PowerCells {
 /// caller has checked them) or non-finite input.
 PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::VectorXd& h,
                        bool check_distinct = true);
+
+/// Power diagrams of one fixed set of sites for many heights, as the Newton iterations of
+/// the OMT solver need: the sites are checked once (finite, distinct unless
+/// `check_distinct` is false) and their spatial order for the insertions is kept.
+class PowerDiagrams {
+ public:
+  PowerDiagrams(Domain domain, Points sites, bool check_distinct = true);
+  /// The diagram at heights h (as power_cells).
+  PowerCells operator()(const Eigen::VectorXd& h) const;
+  /// The diagram at h, or nothing as soon as one site is found hidden (its cell empty):
+  /// a rejected trial step then costs a fraction of a diagram.
+  std::optional<PowerCells> if_none_hidden(const Eigen::VectorXd& h) const;
+  const Domain& domain() const { return domain_; }
+  const Points& sites() const { return sites_; }
+
+ private:
+  std::optional<PowerCells> build(const Eigen::VectorXd& h, bool fail_if_hidden) const;
+  Domain domain_;
+  Points sites_;
+  std::vector<int> order_;  // Hilbert order of the sites
+};
 
 }  // namespace brenier::omt
