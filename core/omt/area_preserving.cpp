@@ -1,5 +1,6 @@
 #include "omt/area_preserving.hpp"
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <string>
 
@@ -17,7 +18,10 @@ Eigen::VectorXd vertex_masses(const mesh::TriMesh& m) {
   return mass;
 }
 
-AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
+namespace {
+
+// Checks the options; the vertex masses of eq. 3.30 times the region weights (sec. 6.3).
+Eigen::VectorXd weighted_masses(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
   const int nv = m.num_vertices();
   if (opt.weights.size() != 0) {
     if (opt.weights.size() != nv)
@@ -28,31 +32,48 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
                 "; weights must be positive");
   }
   if (!(opt.t >= 0 && opt.t <= 1)) invalid("t must lie in [0, 1], got " + std::to_string(opt.t));
-  AreaPreservingMap out;
-  // (1) conformal map phi: S -> D (Alg. 1).
-  out.conformal = conformal::map_to_disk(m, opt.conformal);
-  if (!out.conformal.converged)
-    fail(ErrorCode::kNotConverged, "the conformal map did not converge: max |K - Kbar| = " +
-                                       std::to_string(out.conformal.max_curvature_error));
-  // (2) sites p_i = phi(v_i), masses nu_i of eq. 3.30 times the region weights (sec. 6.3),
-  // scaled to the disk's area pi inside solve_omt.
-  Points sites = out.conformal.positions.leftCols(2);
   Eigen::VectorXd nu = vertex_masses(m);
   if (opt.weights.size() != 0) nu = nu.cwiseProduct(opt.weights);
-  // (3) the OMT map tau from the uniform disk to (p, nu) (Alg. 2).
-  // The sites are our conformal map's, not the caller's: where it crowds vertices below
-  // double precision (coincident sites), that is the method's limit, not bad input.
+  return nu;
+}
+
+void require_converged(const conformal::ConformalMap& c) {
+  if (!c.converged)
+    fail(ErrorCode::kNotConverged,
+         "the conformal map did not converge: max |K - Kbar| = " + std::to_string(c.max_curvature_error));
+}
+
+// The OMT map from `domain` to the sites with masses nu (Alg. 2). The sites are our
+// conformal map's, not the caller's: where it crowds vertices below double precision
+// (coincident sites), that is the method's limit, not bad input.
+OmtResult transport(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu, const OmtOptions& opt) {
+  OmtResult r;
   try {
-    out.omt = solve_omt(Domain::unit_disk(), sites, nu, opt.omt);
+    r = solve_omt(domain, sites, nu, opt);
   } catch (const Error& e) {
     if (e.code() != ErrorCode::kInvalidArgument) throw;
     fail(ErrorCode::kNotConverged, std::string("the conformal map crowds vertices below double precision: ") + e.what());
   }
-  if (!out.omt.converged)
-    fail(ErrorCode::kNotConverged,
-         "the optimal transport did not converge: max relative cell-mass error " +
-             std::to_string(out.omt.max_relative_error) + " after " + std::to_string(out.omt.iterations) +
-             " Newton iterations");
+  if (!r.converged)
+    fail(ErrorCode::kNotConverged, "the optimal transport did not converge: max relative cell-mass error " +
+                                       std::to_string(r.max_relative_error) + " after " +
+                                       std::to_string(r.iterations) + " Newton iterations");
+  return r;
+}
+
+}  // namespace
+
+AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
+  const int nv = m.num_vertices();
+  const Eigen::VectorXd nu = weighted_masses(m, opt);
+  AreaPreservingMap out;
+  // (1) conformal map phi: S -> D (Alg. 1).
+  out.conformal = conformal::map_to_disk(m, opt.conformal);
+  require_converged(out.conformal);
+  // (2) sites p_i = phi(v_i), masses nu_i scaled to the disk's area pi inside solve_omt;
+  // (3) the OMT map tau from the uniform disk to (p, nu).
+  Points sites = out.conformal.positions.leftCols(2);
+  out.omt = transport(Domain::unit_disk(), sites, nu, opt.omt);
   // (4) tau^{-1} o phi: each vertex goes to the centroid of its cell W_i = tau^{-1}(p_i).
   out.positions = mesh::Vertices::Zero(nv, 3);
   out.positions.leftCols(2) = out.omt.cells.centroid;
@@ -73,6 +94,39 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
       if (r > 0) out.positions.row(v) /= r;
     }
   out.relaxed_vertices = conformal::repair_planar_folds(m, out.positions, fixed, out.folded_faces);
+  return out;
+}
+
+AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
+  const int nv = m.num_vertices();
+  const Eigen::VectorXd nu = weighted_masses(m, opt);
+  AreaPreservingMap out;
+  out.conformal = conformal::map_to_sphere(m, opt.conformal);
+  require_converged(out.conformal);
+  const mesh::Vertices& X = out.conformal.positions;
+  // The north pole (infinity of the stereographic plane) goes to the centre of the face
+  // with the largest image, as far from every vertex as the map allows.
+  int widest = 0;
+  double widest_area = -1;
+  for (int f = 0; f < m.num_faces(); ++f) {
+    const Eigen::Vector3d a = X.row(m.F(f, 0)), b = X.row(m.F(f, 1)), c = X.row(m.F(f, 2));
+    const double area = (b - a).cross(c - a).norm();
+    if (area > widest_area) widest_area = area, widest = f;
+  }
+  const Eigen::Vector3d pole =
+      (X.row(m.F(widest, 0)) + X.row(m.F(widest, 1)) + X.row(m.F(widest, 2))).transpose().normalized();
+  const Eigen::Matrix3d R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  const mesh::Vertices Y = X * R.transpose();  // rows R x
+  Points sites(nv, 2);
+  for (int v = 0; v < nv; ++v) sites.row(v) << Y(v, 0) / (1 - Y(v, 2)), Y(v, 1) / (1 - Y(v, 2));
+  out.omt = transport(Domain::stereographic_sphere(), sites, nu, opt.omt);
+  // Each vertex to its cell's centroid on the sphere, turned back.
+  out.positions = out.omt.cells.sphere_centroid * R;  // rows R^T c
+  if (opt.t > 0)
+    for (int v = 0; v < nv; ++v)
+      out.positions.row(v) = ((1 - opt.t) * out.positions.row(v) + opt.t * X.row(v)).normalized();
+  std::vector<char> fixed(nv, 0);
+  out.relaxed_vertices = conformal::untangle(m, out.positions, true, fixed, out.folded_faces);
   return out;
 }
 

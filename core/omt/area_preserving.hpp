@@ -23,7 +23,7 @@ struct AreaPreservingOptions {
 };
 
 struct AreaPreservingMap {
-  mesh::Vertices positions;  // #V by 3, z = 0: the centroids of the cells, inside the disk
+  mesh::Vertices positions;  // #V by 3: disk: z = 0, the cells' centroids; sphere: on the sphere
   conformal::ConformalMap conformal;
   OmtResult omt;
   int relaxed_vertices = 0;  // moved by the local fold repair after the centroids
@@ -44,5 +44,18 @@ Eigen::VectorXd vertex_masses(const mesh::TriMesh& mesh);
 /// Throws Error(kInvalidArgument) for a mesh that is not a disk or bad weights,
 /// Error(kNotConverged) when the conformal map or the transport does not converge.
 AreaPreservingMap area_preserving_disk(const mesh::TriMesh& mesh, const AreaPreservingOptions& options = {});
+
+/// Area-preserving map of a closed genus-0 surface onto the unit sphere (sec. 3.2.5): the
+/// conformal sphere map, turned so that the north pole lies in the middle of its largest
+/// face (no site at infinity), then the stereographic projection gives the sites, and the
+/// transport from the sphere's own measure on the stereographic plane
+/// (Domain::stereographic_sphere) to them weighted by the vertex masses; each vertex goes
+/// to the centroid of its cell on the sphere. We chose this over power diagrams on the
+/// sphere through a 3-D convex hull: it is the dissertation's construction, it reuses the
+/// planar solver whole (exact cell masses and Hessian in closed form), and the conformal
+/// map already lives in that plane. With t > 0, vertex i goes to the normalized
+/// (1 - t) c_i + t p_i, c_i its cell's centroid and p_i its conformal image. Folds left by
+/// neighbouring centroids are untangled on the sphere. Errors as area_preserving_disk.
+AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& mesh, const AreaPreservingOptions& options = {});
 
 }  // namespace brenier::omt

@@ -1,5 +1,7 @@
 #include "omt/power_diagram.hpp"
 
+#include <Eigen/Geometry>
+
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 #include <CGAL/Regular_triangulation_2.h>
 #include <CGAL/Regular_triangulation_face_base_2.h>
@@ -68,38 +70,76 @@ Moments circular_segment(const Vec2& X, const Vec2& Y, double R) {
 }
 
 // A convex polygon with, for each edge (corner k -> k+1), the slot of the neighbour whose
-// bisector it lies on (-1: the domain's or the bounding box's side).
+// bisector it lies on (-1: the domain's or the bounding box's side) and that line,
+// {x : <x, n> + c = 0} stored as (n, c).
 struct LabelledPolygon {
   std::vector<Vec2> p;
   std::vector<int> label;
+  std::vector<Eigen::Vector3d> line;
+  void add(const Vec2& x, int l, const Eigen::Vector3d& ln) {
+    p.push_back(x);
+    label.push_back(l);
+    line.push_back(ln);
+  }
 };
+
+// Where the edge a -> b (on `edge_line`) crosses the line <x, n> + c = 0 (fa, fb: its
+// values at a and b, of opposite signs). Interpolation keeps the point between a and b but
+// carries an error of eps |b - a|: fine for edges of the unit disk's box, far too much for
+// edges of the sphere's stereographic plane, clipped from a box 1e9 across. Long edges
+// therefore meet the two lines directly (error relative to the lines' own coefficients),
+// unless they are nearly parallel.
+Vec2 crossing(const Vec2& a, const Vec2& b, double fa, double fb, const Eigen::Vector3d& edge_line, const Vec2& n,
+              double c) {
+  const Vec2 interpolated = a + (fa / (fa - fb)) * (b - a);
+  if ((b - a).squaredNorm() < 1e4) return interpolated;
+  const double det = edge_line.x() * n.y() - edge_line.y() * n.x();
+  const double scale = std::hypot(edge_line.x(), edge_line.y()) * n.norm();
+  if (!(std::abs(det) > 1e-8 * scale)) return interpolated;
+  const Vec2 x((-edge_line.z() * n.y() + c * edge_line.y()) / det, (-c * edge_line.x() + edge_line.z() * n.x()) / det);
+  const double slack = 1e-9 * (b - a).norm();
+  if (x.x() < std::min(a.x(), b.x()) - slack || x.x() > std::max(a.x(), b.x()) + slack ||
+      x.y() < std::min(a.y(), b.y()) - slack || x.y() > std::max(a.y(), b.y()) + slack)
+    return interpolated;
+  return x;
+}
 
 // Keeps the part where <x, n> + c >= 0 (Sutherland-Hodgman); the new side is labelled j.
 void clip(LabelledPolygon& P, const Vec2& n, double c, int j, LabelledPolygon& out) {
   out.p.clear();
   out.label.clear();
+  out.line.clear();
+  const Eigen::Vector3d new_line(n.x(), n.y(), c);
   const size_t m = P.p.size();
   for (size_t k = 0; k < m; ++k) {
     const Vec2& a = P.p[k];
     const Vec2& b = P.p[(k + 1) % m];
     double fa = a.dot(n) + c, fb = b.dot(n) + c;
     if (fa >= 0) {
-      out.p.push_back(a);
-      out.label.push_back(P.label[k]);
-      if (fb < 0) {
-        out.p.push_back(a + (fa / (fa - fb)) * (b - a));
-        out.label.push_back(j);
-      }
+      out.add(a, P.label[k], P.line[k]);
+      if (fb < 0) out.add(crossing(a, b, fa, fb, P.line[k], n, c), j, new_line);
     } else if (fb >= 0) {
-      out.p.push_back(a + (fa / (fa - fb)) * (b - a));
-      out.label.push_back(P.label[k]);
+      out.add(crossing(a, b, fa, fb, P.line[k], n, c), P.label[k], P.line[k]);
     }
   }
   std::swap(P, out);
 }
 
+// The polygon of the given counter-clockwise corners, every side labelled -1.
+LabelledPolygon outline(const std::vector<Vec2>& corners) {
+  LabelledPolygon P;
+  const size_t m = corners.size();
+  for (size_t k = 0; k < m; ++k) {
+    const Vec2 d = corners[(k + 1) % m] - corners[k];
+    const Vec2 n(-d.y(), d.x());  // inward
+    P.add(corners[k], -1, Eigen::Vector3d(n.x(), n.y(), -corners[k].dot(n)));
+  }
+  return P;
+}
+
 struct CellResult {
-  Moments m;  // about the site
+  Moments m;  // about the site (sphere: m.area only)
+  Eigen::Vector3d sphere_first = Eigen::Vector3d::Zero();  // sphere: ∫ X dA
   double* slot_length = nullptr;  // per neighbour slot (the polygon labels): its edge length
 };
 
@@ -224,9 +264,112 @@ void integrate_density(const LabelledPolygon& P, const DensityMesh& dm, const Ve
     }
 }
 
+constexpr double kSphereFar = 1e9;  // half side of the box the unbounded sphere cells are cut by
+
+// The inverse stereographic projection (north pole = infinity).
+Eigen::Vector3d to_sphere(const Vec2& x) {
+  const double q = 1 + x.squaredNorm();
+  return Eigen::Vector3d(2 * x.x() / q, 2 * x.y() / q, (x.squaredNorm() - 1) / q);
+}
+
+// Polygon P under the sphere's measure 4 / (1 + |x|^2)^2 dx of the stereographic plane
+// (sec. 3.2.5), edge by edge. For the edge a -> b on the line at signed distance d from
+// the origin (d = a x e, e the unit direction; t = <x, e> along the line, s^2 = 1 + d^2):
+// - mass, as the signed fan (0, a, b) in polar coordinates: int 2 r^2 / (1 + r^2) dtheta
+//   = (2 d / s) [atan(t / s)] from t_a to t_b;
+// - dual-edge mass: int 4 / (s^2 + t^2)^2 dt = 2 [t / (s^2 (s^2 + t^2)) + atan(t / s) / s^3];
+// - first moment on the sphere: the line's image is the circle of the plane
+//   <(X1, X2), m> + d X3 = d (m = (e_y, -e_x)), unit normal N = (m, d) / s, centre
+//   c = (d / s) N, radius 1 / s, through the north pole; int_W X dA = 1/2 oint X x dX and
+//   along an arc of angle dphi about N that is 1/2 [c x (X_b - X_a) + dphi N / s^2]. The
+//   arc is the one that avoids the north pole (the image of infinity).
+// Small cells are integrated by quadrature instead (integrate_sphere_small): the closed
+// forms are differences of O(1) fan terms, so a cell 1e-9 across would keep only round-off.
+void integrate_sphere(const LabelledPolygon& P, const Vec2& site, CellResult& out);
+
+// Gauss-Legendre, 4 points on [0, 1].
+constexpr double kGaussX[4] = {0.0694318442029737, 0.3300094782075719, 0.6699905217924281, 0.9305681557970263};
+constexpr double kGaussW[4] = {0.1739274225687269, 0.3260725774312731, 0.3260725774312731, 0.1739274225687269};
+
+// The same integrals over a cell that is small beside the scale on which the density
+// varies: each fan triangle (site, a, b) by a collapsed 4 x 4 Gauss rule (exact to degree
+// 7; the density's relative variation over the cell is below 0.05, so the relative error
+// stays ~1e-11), each edge by 4-point Gauss.
+void integrate_sphere_small(const LabelledPolygon& P, const Vec2& site, CellResult& out) {
+  const size_t m = P.p.size();
+  auto density = [](const Vec2& x) {
+    const double q = 1 + x.squaredNorm();
+    return 4 / (q * q);
+  };
+  for (size_t k = 0; k < m; ++k) {
+    const Vec2 a = P.p[k] - site, b = P.p[(k + 1) % m] - site;
+    const double jac = cross(a, b);  // twice the signed area
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) {
+        const double u = kGaussX[i], v = kGaussX[j];
+        const Vec2 x = site + u * ((1 - v) * a + v * b);
+        const double w = kGaussW[i] * kGaussW[j] * u * jac * density(x);
+        out.m.area += w;
+        out.sphere_first += w * to_sphere(x);
+      }
+    if (P.label[k] >= 0) {
+      const double len = (b - a).norm();
+      double edge = 0;
+      for (int i = 0; i < 4; ++i) edge += kGaussW[i] * density(site + a + kGaussX[i] * (b - a));
+      out.slot_length[P.label[k]] += len * edge;
+    }
+  }
+}
+
+void integrate_sphere(const LabelledPolygon& P, const Vec2& site, CellResult& out) {
+  const size_t m = P.p.size();
+  double radius = 0;
+  for (const Vec2& q : P.p) radius = std::max(radius, (q - site).norm());
+  const double r = site.norm();
+  if (2 * radius * (1 + 4 * r) / (1 + r * r) < 0.05) return integrate_sphere_small(P, site, out);
+  const Eigen::Vector3d pole(0, 0, 1);
+  for (size_t k = 0; k < m; ++k) {
+    const Vec2& a = P.p[k];
+    const Vec2& b = P.p[(k + 1) % m];
+    const double len = (b - a).norm();
+    if (!(len > 0)) continue;
+    const Vec2 e = (b - a) / len;
+    // (From the end nearer the origin: from the far end of a ray, 1e9 out, a x e would
+    // cancel down to ~1e-7.)
+    const double d = cross(a.squaredNorm() <= b.squaredNorm() ? a : b, e), ta = a.dot(e), tb = b.dot(e);
+    const double s2 = 1 + d * d, s = std::sqrt(s2);
+    const double atan_a = std::atan(ta / s), atan_b = std::atan(tb / s);
+    out.m.area += 2 * d / s * (atan_b - atan_a);
+    if (P.label[k] >= 0) {
+      auto F = [&](double t, double at) { return 2 * (t / (s2 * (s2 + t * t)) + at / (s2 * s)); };
+      out.slot_length[P.label[k]] += F(tb, atan_b) - F(ta, atan_a);
+    }
+    const Eigen::Vector3d N = Eigen::Vector3d(e.y(), -e.x(), d) / s, c = (d / s) * N;
+    const Eigen::Vector3d Xa = to_sphere(a), Xb = to_sphere(b);
+    const Eigen::Vector3d u = Xa - c, v = Xb - c, z = pole - c;
+    auto angle = [&](const Eigen::Vector3d& p, const Eigen::Vector3d& q) {
+      return std::atan2(N.dot(p.cross(q)), p.dot(q));
+    };
+    double dphi = angle(u, v);
+    const double phi_pole = angle(u, z);
+    if (dphi > 0 && phi_pole > 0 && phi_pole < dphi) dphi -= 2 * std::numbers::pi;
+    if (dphi < 0 && phi_pole < 0 && phi_pole > dphi) dphi += 2 * std::numbers::pi;
+    out.sphere_first -= 0.5 * (c.cross(Xb - Xa) + (dphi / s2) * N);
+  }
+}
+
 }  // namespace
 
 Domain Domain::unit_disk() { return Domain{}; }
+
+Domain Domain::stereographic_sphere() {
+  Domain d;
+  d.is_disk = false;
+  d.is_sphere = true;
+  d.polygon.resize(4, 2);
+  d.polygon << -kSphereFar, -kSphereFar, kSphereFar, -kSphereFar, kSphereFar, kSphereFar, -kSphereFar, kSphereFar;
+  return d;
+}
 
 Domain Domain::convex_polygon(const Points& corners) {
   const int n = static_cast<int>(corners.rows());
@@ -317,6 +460,7 @@ Domain Domain::piecewise_constant(const Points& V, const Eigen::Matrix<int, Eige
 }
 
 double Domain::area() const {
+  if (is_sphere) return 4 * std::numbers::pi;
   if (density) {
     double m = 0;
     for (int f = 0; f < density->faces.rows(); ++f) {
@@ -333,6 +477,7 @@ double Domain::area() const {
 }
 
 bool Domain::contains(double x, double y, double slack) const {
+  if (is_sphere) return std::isfinite(x) && std::isfinite(y);
   if (is_disk) return std::hypot(x, y) <= radius + slack;
   for (int k = 0; k < polygon.rows(); ++k) {
     Vec2 a = polygon.row(k), b = polygon.row((k + 1) % polygon.rows());
@@ -425,15 +570,19 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
   out.mass = Eigen::VectorXd::Zero(n);
   out.centroid = sites;
   out.second_moment = Eigen::VectorXd::Zero(n);
+  if (domain.is_sphere) {
+    out.sphere_centroid.resize(n, 3);
+    for (int i = 0; i < n; ++i) out.sphere_centroid.row(i) = to_sphere(sites.row(i)).transpose();
+  }
   std::vector<double> slot_length(nbr.size(), 0.0);
-  LabelledPolygon start_polygon;
+  std::vector<Vec2> corners;
   if (domain.is_disk) {
     const double r = domain.radius;
-    start_polygon.p = {Vec2(-r, -r), Vec2(r, -r), Vec2(r, r), Vec2(-r, r)};
+    corners = {Vec2(-r, -r), Vec2(r, -r), Vec2(r, r), Vec2(-r, r)};
   } else {
-    for (int k = 0; k < domain.polygon.rows(); ++k) start_polygon.p.push_back(domain.polygon.row(k));
+    for (int k = 0; k < domain.polygon.rows(); ++k) corners.push_back(domain.polygon.row(k));
   }
-  start_polygon.label.assign(start_polygon.p.size(), -1);
+  const LabelledPolygon start_polygon = outline(corners);
 
 #pragma omp parallel
   {
@@ -454,7 +603,9 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
       if (P.p.size() < 3) continue;
       CellResult cr;
       cr.slot_length = slot_length.data();
-      if (domain.density)
+      if (domain.is_sphere)
+        integrate_sphere(P, yi, cr);
+      else if (domain.density)
         integrate_density(P, *domain.density, yi, i, stamp, Q, scratch, cr);
       else if (domain.is_disk)
         integrate_disk(P, domain.radius, yi, q, cr);
@@ -462,6 +613,15 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
         integrate_polygon(P, yi, cr);
       if (!(cr.m.area > 0)) continue;
       out.mass[i] = cr.m.area;
+      if (domain.is_sphere) {
+        const double norm = cr.sphere_first.norm();
+        // (A cell that is the whole sphere but for a null set has no direction.)
+        const Eigen::Vector3d C = norm > 1e-300 ? Eigen::Vector3d(cr.sphere_first / norm) : to_sphere(yi);
+        out.sphere_centroid.row(i) = C.transpose();
+        out.centroid.row(i) << C.x() / (1 - C.z()), C.y() / (1 - C.z());
+        out.second_moment[i] = 2 * cr.m.area - 2 * cr.sphere_first.dot(to_sphere(yi));
+        continue;
+      }
       out.centroid.row(i) = (yi + cr.m.first / cr.m.area).transpose();
       out.second_moment[i] = cr.m.second;
     }

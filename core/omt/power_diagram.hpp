@@ -31,8 +31,17 @@ struct Domain {
   double radius = 1.0;
   Points polygon;  // counter-clockwise corners when !is_disk
   std::shared_ptr<const DensityMesh> density;  // null: uniform density 1
+  bool is_sphere = false;  // the stereographic plane with the sphere's measure
 
   static Domain unit_disk();
+  /// The unit sphere's area measure on its stereographic plane (dissertation sec. 3.2.5):
+  /// density 4 / (1 + |x|^2)^2 over the whole plane (total 4 pi), the north pole at
+  /// infinity. Sites are stereographic images y = (X1, X2) / (1 - X3); cells on the convex
+  /// hull of the sites are unbounded (cut at |x| = 1e9, which leaves out 1e-17 of the
+  /// sphere). Masses and dual-edge masses are exact; each cell also gets its centroid on
+  /// the sphere (from the boundary formula  int_W X dA = 1/2 oint X x dX  along the image
+  /// circles of its edges) and its second moment in the chordal distance.
+  static Domain stereographic_sphere();
   /// Throws Error(kInvalidArgument) unless the corners form a convex counter-clockwise
   /// polygon of positive area.
   static Domain convex_polygon(const Points& corners);
@@ -59,6 +68,10 @@ struct PowerCells {
   Eigen::VectorXd mass;        // |W_i ∩ Omega| (uniform density)
   Points centroid;             // of W_i ∩ Omega (the site itself when the cell is empty)
   Eigen::VectorXd second_moment;  // ∫_{W_i ∩ Omega} |x - y_i|^2 dx: the transport cost
+  /// Sphere domain only: unit vector of ∫_{W_i} X dA on the sphere (the cell's centroid
+  /// direction; `centroid` is its stereographic image), and second_moment is then
+  /// ∫_{W_i} |X - Y_i|^2 dA with Y_i the site on the sphere (squared chordal distance).
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> sphere_centroid;
   std::vector<DualEdge> edges;
   int empty_cells = 0;         // hidden sites and cells that miss the domain
 };

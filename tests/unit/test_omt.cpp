@@ -329,3 +329,116 @@ TEST(PiecewiseConstantDensity, ASurfaceTransportedOntoItselfBarelyMoves) {
   ASSERT_TRUE(u.converged);
   EXPECT_GT(std::sqrt(u.cells.second_moment.sum() / u.cells.mass.sum()), 2 * std::sqrt(cost / mass));
 }
+
+TEST(SphereDomain, CellMassesAndCentroidsHaveTheirClosedForms) {
+  const Domain sphere = Domain::stereographic_sphere();
+  EXPECT_DOUBLE_EQ(sphere.area(), 4 * std::numbers::pi);
+  // One site: the whole sphere.
+  Points one(1, 2);
+  one << 0.3, 0.2;
+  EXPECT_NEAR(omt::power_cells(sphere, one, Eigen::VectorXd::Zero(1)).mass[0], 4 * std::numbers::pi, 1e-12);
+  // Two sites mirrored in x = 0: two hemispheres, centroids (+-1, 0, 0); their common edge is
+  // the great circle over the line x = 0, of measure int 4 / (1 + t^2)^2 dt = 2 pi.
+  Points two(2, 2);
+  two << 1, 0, -1, 0;
+  auto halves = omt::power_cells(sphere, two, -0.5 * two.rowwise().squaredNorm());
+  EXPECT_NEAR(halves.mass[0], 2 * std::numbers::pi, 1e-12);
+  EXPECT_NEAR(halves.sphere_centroid(0, 0), 1.0, 1e-12);
+  EXPECT_NEAR(halves.sphere_centroid(1, 0), -1.0, 1e-12);
+  ASSERT_EQ(halves.edges.size(), 1u);
+  EXPECT_NEAR(halves.edges[0].length, 2 * std::numbers::pi, 1e-12);
+  // Hemisphere second moment about its pole (1,0,0): int |X - Y|^2 = 2 area - 2 <int X, Y> = 4 pi - 2 pi.
+  EXPECT_NEAR(halves.second_moment[0], 2 * std::numbers::pi, 1e-12);
+  // The Voronoi cell of the origin among (+-2, 0), (0, +-2) is the square [-1, 1]^2: by
+  // symmetry 8 fans of the edge x = 1, each 2 d / s [atan(t / s)] with d = 1, s = sqrt 2.
+  Points five(5, 2);
+  five << 0, 0, 2, 0, -2, 0, 0, 2, 0, -2;
+  auto sq = omt::power_cells(sphere, five, -0.5 * five.rowwise().squaredNorm());
+  EXPECT_NEAR(sq.mass[0], 8 * std::sqrt(2.0) * std::atan(1 / std::sqrt(2.0)), 1e-12);
+  EXPECT_NEAR(sq.mass.sum(), 4 * std::numbers::pi, 1e-12);
+}
+
+TEST(SphereDomain, CellsAgreeWithSamplingTheSphere) {
+  // Random sites and heights, unbounded hull cells included: masses and centroids against
+  // uniform samples of the sphere assigned to the cell of their stereographic image.
+  const Domain sphere = Domain::stereographic_sphere();
+  const int n = 12;
+  std::mt19937 rng(3);
+  std::normal_distribution<double> N(0, 1.5);
+  Points y(n, 2);
+  for (int i = 0; i < n; ++i) y.row(i) << N(rng), N(rng);
+  Eigen::VectorXd h = -0.5 * y.rowwise().squaredNorm();
+  for (int i = 0; i < n; ++i) h[i] += 0.2 * std::sin(i);
+  auto c = omt::power_cells(sphere, y, h);
+  EXPECT_NEAR(c.mass.sum(), 4 * std::numbers::pi, 1e-12);
+  const int samples = 400000;
+  Eigen::VectorXd mc = Eigen::VectorXd::Zero(n);
+  Eigen::MatrixXd first = Eigen::MatrixXd::Zero(n, 3);
+  for (int k = 0; k < samples; ++k) {
+    Eigen::Vector3d X(N(rng), N(rng), N(rng));
+    X.normalize();
+    const double u = X.x() / (1 - X.z()), v = X.y() / (1 - X.z());
+    int best = 0;
+    for (int i = 1; i < n; ++i)
+      if (u * y(i, 0) + v * y(i, 1) + h[i] > u * y(best, 0) + v * y(best, 1) + h[best]) best = i;
+    mc[best] += 4 * std::numbers::pi / samples;
+    first.row(best) += X.transpose();
+  }
+  for (int i = 0; i < n; ++i) {
+    if (mc[i] < 0.3) continue;  // sampling error below 3 % needs a sizeable cell
+    EXPECT_NEAR(c.mass[i], mc[i], 0.03 * mc[i]) << i;
+    const Eigen::Vector3d dir = first.row(i).transpose().normalized();
+    EXPECT_LT((dir - c.sphere_centroid.row(i).transpose()).norm(), 0.03) << i;
+  }
+}
+
+TEST(SphereDomain, SmallCellsAreIntegratedAsPreciselyAsLargeOnes) {
+  // The same configuration shrunk about a point at radius 1 by 10^k: cells from 1e-2 to
+  // 1e-6 across, integrated in closed form at the first scale and by quadrature below.
+  // Each cell's mass over the density at its site, divided by the scale squared, must stay
+  // put to the density's variation across the cluster (2e-3 at the first scale). (Smaller
+  // cells are not compared: heights of size |y|^2 / 2 ~ 1 place a bisector to 1e-16 / |y_i
+  // - y_j|, so a cell 1e-7 across is only known to 1 % -- the representation's limit.)
+  const Domain sphere = Domain::stereographic_sphere();
+  Points base = random_in_disk(40, 9, 1.0);
+  const Eigen::RowVector2d centre(0.6, 0.8);
+  Eigen::VectorXd reference;
+  for (double scale : {1e-1, 1e-3, 1e-4, 1e-5}) {
+    Points y = (base * scale).rowwise() + centre;
+    auto c = omt::power_cells(sphere, y, -0.5 * y.rowwise().squaredNorm());
+    Eigen::VectorXd normalized(40);
+    int inner = 0;
+    for (int i = 0; i < 40; ++i) {
+      const double q = 1 + y.row(i).squaredNorm();
+      normalized[i] = c.mass[i] / (4 / (q * q)) / (scale * scale);
+    }
+    if (reference.size() == 0) {
+      reference = normalized;
+      continue;
+    }
+    for (int i = 0; i < 40; ++i) {
+      if (base.row(i).norm() > 0.5) continue;  // the hull cells reach far beyond the cluster
+      ++inner;
+      EXPECT_NEAR(normalized[i], reference[i], 0.03 * reference[i]) << "scale " << scale << " cell " << i;
+    }
+    EXPECT_GT(inner, 5);
+  }
+}
+
+TEST(SphereDomain, TransportOntoTheSphereConvergesWithMassesEqualTargets) {
+  // An ellipsoid (an icosphere stretched 3x): the conformal sphere map puts the poles' area
+  // into small caps; the area-preserving map gives every vertex its share of the sphere.
+  mesh::TriMesh m = mesh::make_icosphere(3);
+  m.V.col(2) *= 3.0;
+  auto ap = omt::area_preserving_sphere(m);
+  EXPECT_TRUE(ap.omt.converged);
+  EXPECT_LE(ap.omt.max_relative_error, 1e-8);
+  EXPECT_EQ(ap.omt.cells.empty_cells, 0);
+  EXPECT_NEAR(ap.omt.cells.mass.sum(), 4 * std::numbers::pi, 1e-9);
+  auto q = quality::measure(m, ap.positions, quality::Target::kSphere);
+  auto qc = quality::measure(m, ap.conformal.positions, quality::Target::kSphere);
+  EXPECT_EQ(q.flipped_faces, 0);
+  EXPECT_LT(q.area_distortion_log_abs.mean, 0.25 * qc.area_distortion_log_abs.mean)
+      << q.area_distortion_log_abs.mean << " vs conformal " << qc.area_distortion_log_abs.mean;
+  EXPECT_LT((ap.positions.rowwise().norm().array() - 1).abs().maxCoeff(), 1e-12);
+}

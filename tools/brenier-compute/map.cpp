@@ -116,8 +116,6 @@ int run_map(const MapOptions& o) {
   if (o.method == "conformal") {
     map = o.domain == "disk" ? conformal::map_to_disk(surface, co) : conformal::map_to_sphere(surface, co);
   } else {
-    if (o.domain != "disk")
-      invalid("area-preserving maps onto the sphere are not available yet; use --domain disk (or --cut-hole)");
     omt::AreaPreservingOptions apo;
     apo.conformal = co;
     apo.conformal.tolerance = 1e-7;
@@ -125,7 +123,7 @@ int run_map(const MapOptions& o) {
     apo.omt.max_iterations = o.max_iterations;
     apo.t = o.t;
     if (!o.weights.empty()) apo.weights = read_weights(o.weights, origin, cm.input_vertices);
-    ap = omt::area_preserving_disk(surface, apo);
+    ap = o.domain == "disk" ? omt::area_preserving_disk(surface, apo) : omt::area_preserving_sphere(surface, apo);
     map = ap->conformal;
   }
   const mesh::Vertices& positions = ap ? ap->positions : map.positions;
@@ -222,7 +220,7 @@ void add_map(CLI::App& app, Action& action) {
   CLI::App* cmd = app.add_subcommand("map", "map a surface onto the unit disk or sphere");
   o->input.add_to(cmd);
   cmd->add_option("--domain", o->domain, "disk or sphere")->check(CLI::IsMember({"disk", "sphere"}));
-  cmd->add_option("--method", o->method, "conformal or area-preserving (disk)")
+  cmd->add_option("--method", o->method, "conformal or area-preserving")
       ->check(CLI::IsMember({"conformal", "area-preserving"}));
   cmd->add_option("--t", o->t, "area-preserving: the polar-factorization map phi_t, 0 area-preserving .. 1 conformal")
       ->check(CLI::Range(0.0, 1.0));
