@@ -425,7 +425,7 @@ int repair_planar_folds(const mesh::TriMesh& m, mesh::Vertices& X, const std::ve
         replaced_total += replaced;
       }
     }
-    if (folded == 0 || everything) break;
+    if (folded == 0 || everything || rings > nv) break;
   }
   return replaced_total;
 }

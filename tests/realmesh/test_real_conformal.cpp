@@ -112,3 +112,54 @@ TEST(RealAreaPreserving, AreaDistortionFallsFarBelowTheConformalMaps) {
         << q.area_distortion_log_abs.mean << " vs conformal " << qc.area_distortion_log_abs.mean;
   }
 }
+
+TEST(RealAreaPreserving, SphereMeshesGetAreaPreservingMapsOrSayWhyNot) {
+  // Onto the sphere (sec. 3.2.5). Where the conformal sphere map packs vertices closer than
+  // ~1e-6 (camel, dino, man, armadillo, ...), cells that small are below what double-
+  // precision heights resolve: those must fail with kNotConverged, never return a wrong
+  // map. Every returned map has converged masses and reports its folds truthfully; 42 of
+  // the 59 sphere meshes map with none (2026-11-22: 9 at the precision limit, 8 with 1-9
+  // folds the local repair could not remove), and that number may not drop.
+  auto cases = meshes_of_class(mesh::MeshClass::kSphere);
+  ASSERT_GE(cases.size(), 50u);
+  int unfolded = 0, limit = 0;
+  std::string failures;
+  for (const auto& c : cases) {
+    SCOPED_TRACE(c.name);
+    omt::AreaPreservingMap ap;
+    try {
+      ap = omt::area_preserving_sphere(c.mesh);
+    } catch (const Error& e) {
+      EXPECT_EQ(e.code(), ErrorCode::kNotConverged) << e.what();
+      ++limit;
+      failures += " " + c.name;
+      continue;
+    }
+    EXPECT_TRUE(ap.omt.converged);
+    EXPECT_LE(ap.omt.max_relative_error, 1e-8);
+    Eigen::VectorXd nu = omt::vertex_masses(c.mesh);
+    nu *= 4 * std::numbers::pi / nu.sum();
+    EXPECT_LE(((ap.omt.cells.mass - nu).array().abs() / nu.array()).maxCoeff(), 1e-8);
+    const int flipped = quality::measure(c.mesh, ap.positions, quality::Target::kSphere).flipped_faces;
+    EXPECT_EQ(flipped, ap.folded_faces);
+    if (flipped == 0)
+      ++unfolded;
+    else
+      failures += " " + c.name + "(" + std::to_string(flipped) + " folds)";
+  }
+  EXPECT_GE(unfolded, 42) << "failed:" << failures << " (" << limit << " at the precision limit)";
+}
+
+TEST(RealAreaPreserving, SphereAreaDistortionFallsFarBelowTheConformalMaps) {
+  for (const char* name : {"bear.off", "bear_bis.off", "ellipe0.003.off", "retinal.off"}) {
+    SCOPED_TRACE(name);
+    mesh::CleanMesh cm = mesh::load_mesh((fs::path(BRENIER_TEST_DATA_DIR) / name).string());
+    ASSERT_TRUE(cm.valid());
+    omt::AreaPreservingMap ap = omt::area_preserving_sphere(cm.mesh);
+    auto q = quality::measure(cm.mesh, ap.positions, quality::Target::kSphere);
+    auto qc = quality::measure(cm.mesh, ap.conformal.positions, quality::Target::kSphere);
+    EXPECT_EQ(q.flipped_faces, 0);
+    EXPECT_LT(q.area_distortion_log_abs.mean, 0.3 * qc.area_distortion_log_abs.mean)
+        << q.area_distortion_log_abs.mean << " vs conformal " << qc.area_distortion_log_abs.mean;
+  }
+}
