@@ -34,6 +34,27 @@ double max_relative(const Eigen::VectorXd& w, const Eigen::VectorXd& nu) {
   return ((w - nu).array().abs() / nu.array()).maxCoeff();
 }
 
+// phi_t from t = 0 (area-preserving) to 1 (the conformal map, exactly): no fold, area
+// distortion growing and angle distortion shrinking monotonically.
+template <class Map>
+void expect_polar_family(const mesh::TriMesh& m, Map map, quality::Target target, std::initializer_list<double> ts) {
+  double last_area = -1, last_angle = 1e9;
+  for (double t : ts) {
+    omt::AreaPreservingOptions o;
+    o.t = t;
+    auto ap = map(m, o);
+    auto q = quality::measure(m, ap.positions, target);
+    EXPECT_EQ(q.flipped_faces, 0) << t;
+    EXPECT_GT(q.area_distortion_log_abs.mean, last_area) << t;
+    EXPECT_LT(q.angle_distortion_deg.mean, last_angle) << t;
+    last_area = q.area_distortion_log_abs.mean;
+    last_angle = q.angle_distortion_deg.mean;
+    if (t == 1.0) {
+      EXPECT_LT((ap.positions - ap.conformal.positions).cwiseAbs().maxCoeff(), 1e-12);
+    }
+  }
+}
+
 }  // namespace
 
 TEST(PowerCells, VoronoiQuartersOfTheDiskAndSquareAreExact) {
@@ -219,21 +240,7 @@ TEST(AreaPreserving, PolarFactorizationFamilyRunsFromAreaToAngle) {
   // phi_0 is the area-preserving map, phi_1 the conformal map; in between, area distortion
   // grows and angle distortion shrinks monotonically.
   mesh::TriMesh m = mesh::make_hemisphere(16);
-  double last_area = -1, last_angle = 1e9;
-  for (double t : {0.0, 0.25, 0.5, 0.75, 1.0}) {
-    omt::AreaPreservingOptions o;
-    o.t = t;
-    auto ap = omt::area_preserving_disk(m, o);
-    auto q = quality::measure(m, ap.positions, quality::Target::kPlane);
-    EXPECT_EQ(q.flipped_faces, 0) << t;
-    EXPECT_GT(q.area_distortion_log_abs.mean, last_area) << t;
-    EXPECT_LT(q.angle_distortion_deg.mean, last_angle) << t;
-    last_area = q.area_distortion_log_abs.mean;
-    last_angle = q.angle_distortion_deg.mean;
-    if (t == 1.0) {
-      EXPECT_LT((ap.positions - ap.conformal.positions).cwiseAbs().maxCoeff(), 1e-12);
-    }
-  }
+  expect_polar_family(m, omt::area_preserving_disk, quality::Target::kPlane, {0.0, 0.25, 0.5, 0.75, 1.0});
   omt::AreaPreservingOptions bad;
   bad.t = 1.5;
   EXPECT_THROW(omt::area_preserving_disk(m, bad), Error);
@@ -441,4 +448,23 @@ TEST(SphereDomain, TransportOntoTheSphereConvergesWithMassesEqualTargets) {
   EXPECT_LT(q.area_distortion_log_abs.mean, 0.25 * qc.area_distortion_log_abs.mean)
       << q.area_distortion_log_abs.mean << " vs conformal " << qc.area_distortion_log_abs.mean;
   EXPECT_LT((ap.positions.rowwise().norm().array() - 1).abs().maxCoeff(), 1e-12);
+}
+
+TEST(SphereDomain, PolarFamilyAndRegionWeightsOnTheSphere) {
+  // phi_t on the sphere runs from the area-preserving map (t = 0) to the conformal one
+  // (t = 1, exactly), area distortion growing and angle distortion shrinking on the way;
+  // weight 4 on the vertices with x > 0 gives them about 4/5 of the sphere (sec. 6.3).
+  mesh::TriMesh m = mesh::make_icosphere(3);
+  m.V.col(2) *= 2.5;
+  expect_polar_family(m, omt::area_preserving_sphere, quality::Target::kSphere, {0.0, 0.5, 1.0});
+  omt::AreaPreservingOptions o;
+  o.weights = Eigen::VectorXd::Ones(m.num_vertices());
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if (m.V(v, 0) > 0) o.weights[v] = 4;
+  auto ap = omt::area_preserving_sphere(m, o);
+  double in_region = 0;
+  for (int i = 0; i < m.num_vertices(); ++i)
+    if (m.V(i, 0) > 0) in_region += ap.omt.cells.mass[i];
+  EXPECT_GT(in_region / (4 * std::numbers::pi), 0.75);
+  EXPECT_LT(in_region / (4 * std::numbers::pi), 0.85);
 }
