@@ -65,7 +65,7 @@ struct DualEdge {
 };
 
 struct PowerCells {
-  Eigen::VectorXd mass;        // |W_i ∩ Omega| (uniform density)
+  Eigen::VectorXd mass;        // of W_i ∩ Omega under the domain's measure
   Points centroid;             // of W_i ∩ Omega (the site itself when the cell is empty)
   Eigen::VectorXd second_moment;  // ∫_{W_i ∩ Omega} |x - y_i|^2 dx: the transport cost
   /// Sphere domain only: unit vector of ∫_{W_i} X dA on the sphere (the cell's centroid
