@@ -2,7 +2,7 @@
 # Installs dependencies, builds brenier-compute and runs the main job on embedded defaults:
 # it inspects a few real meshes (a scanned face, a closed model, a defective one) and maps
 # them conformally onto the unit disk and the unit sphere and area-preservingly onto the
-# disk, writing the maps into out/.
+# disk and the sphere, writing the maps into out/.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 BUILD_DIR="${BUILD_DIR:-$ROOT/build}"
@@ -45,3 +45,6 @@ echo "== brenier-compute map data/meshes/bunny00.off --domain disk --cut-hole --
 echo
 echo "== brenier-compute map data/meshes/lion-head.off --method area-preserving -o out/lion-head-area.obj (conformal map, then optimal transport)"
 "$BC" map "$M/lion-head.off" --method area-preserving -o "$OUT/lion-head-area.obj"
+echo
+echo "== brenier-compute map data/meshes/bear.off --domain sphere --method area-preserving -o out/bear-sphere-area.ply"
+"$BC" map "$M/bear.off" --domain sphere --method area-preserving -o "$OUT/bear-sphere-area.ply"
