@@ -149,14 +149,13 @@ Eigen::VectorXd lambda_from_areas(const mesh::TriMesh& surface, const mesh::TriM
   return (0.5 * (a.array() / b.array()).log()).matrix();
 }
 
+}  // namespace
 
 bool face_folded(const mesh::TriMesh& m, const mesh::Vertices& X, int f, bool sphere) {
   Eigen::Vector3d a = X.row(m.F(f, 0)), b = X.row(m.F(f, 1)), c = X.row(m.F(f, 2));
   Eigen::Vector3d n = (b - a).cross(c - a);
   return sphere ? !(n.dot(a + b + c) > 0) : !(n.z() > 0);
 }
-
-}  // namespace
 
 int untangle(const mesh::TriMesh& m, mesh::Vertices& X, bool sphere, const std::vector<char>& fixed,
              int& folded, int max_rounds) {

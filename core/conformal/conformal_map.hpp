@@ -49,6 +49,10 @@ struct ConformalMap {
   int folded_faces = 0;
 };
 
+/// Whether face f of `mesh` is folded under positions X: in the plane (z = 0) when it does
+/// not turn counter-clockwise, on the sphere when its chord triangle does not face outward.
+bool face_folded(const mesh::TriMesh& mesh, const mesh::Vertices& X, int f, bool sphere);
+
 /// Repairs folded faces of a planar map X (#V by 3, z = 0) of `mesh`: a Tutte embedding
 /// with mean value weights of the free vertices within a few rings of the folds, the region
 /// doubling until none is left (the last region is every vertex not `fixed`; with a convex

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <limits>
 #include <string>
+#include <utility>
 
 #include "common/error.hpp"
 #include "mesh/geometry.hpp"
@@ -40,10 +41,14 @@ Eigen::VectorXd weighted_masses(const mesh::TriMesh& m, const AreaPreservingOpti
   return nu;
 }
 
-void require_converged(const conformal::ConformalMap& c) {
+// A map that starts from the conformal map c, which must have converged.
+AreaPreservingMap starting_from(conformal::ConformalMap c) {
   if (!c.converged)
     fail(ErrorCode::kNotConverged,
          "the conformal map did not converge: max |K - Kbar| = " + std::to_string(c.max_curvature_error));
+  AreaPreservingMap out;
+  out.conformal = std::move(c);
+  return out;
 }
 
 // The OMT map from `domain` to the sites with masses nu (Alg. 2). The sites are our
@@ -94,10 +99,7 @@ OmtResult transport(const mesh::TriMesh& m, const Domain& domain, const Points& 
 // for a distorted map is no repair (the folds are then reported).
 void repair_sphere_folds(const mesh::TriMesh& m, AreaPreservingMap& out) {
   const int nv = m.num_vertices(), nf = m.num_faces();
-  auto folded_face = [&](const mesh::Vertices& Z, int f) {
-    const Eigen::Vector3d a = Z.row(m.F(f, 0)), b = Z.row(m.F(f, 1)), c = Z.row(m.F(f, 2));
-    return !((b - a).cross(c - a).dot(a + b + c) > 0);
-  };
+  auto folded_face = [&](const mesh::Vertices& Z, int f) { return conformal::face_folded(m, Z, f, true); };
   const double allowed =
       0.1 + quality::measure(m, out.positions, quality::Target::kSphere).area_distortion_log_abs.mean;
   std::vector<char> tried(nf, 0);
@@ -168,10 +170,8 @@ void repair_sphere_folds(const mesh::TriMesh& m, AreaPreservingMap& out) {
 AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
   const int nv = m.num_vertices();
   const Eigen::VectorXd nu = weighted_masses(m, opt);
-  AreaPreservingMap out;
   // (1) conformal map phi: S -> D (Alg. 1).
-  out.conformal = conformal::map_to_disk(m, opt.conformal);
-  require_converged(out.conformal);
+  AreaPreservingMap out = starting_from(conformal::map_to_disk(m, opt.conformal));
   // (2) sites p_i = phi(v_i), masses nu_i scaled to the disk's area pi inside solve_omt;
   // (3) the OMT map tau from the uniform disk to (p, nu).
   Points sites = out.conformal.positions.leftCols(2);
@@ -202,9 +202,7 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
 AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
   const int nv = m.num_vertices();
   const Eigen::VectorXd nu = weighted_masses(m, opt);
-  AreaPreservingMap out;
-  out.conformal = conformal::map_to_sphere(m, opt.conformal);
-  require_converged(out.conformal);
+  AreaPreservingMap out = starting_from(conformal::map_to_sphere(m, opt.conformal));
   const mesh::Vertices& X = out.conformal.positions;
   // The north pole (infinity of the stereographic plane) goes to the centre of the face
   // with the largest image, as far from every vertex as the map allows.

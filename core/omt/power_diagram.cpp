@@ -635,8 +635,6 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
 }
 
 PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::VectorXd& h, bool check_distinct) {
-  if (h.size() != sites.rows())
-    invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(sites.rows()) + " sites");
   return PowerDiagrams(domain, sites, check_distinct)(h);
 }
 

@@ -98,8 +98,6 @@ class PowerDiagrams {
   /// The diagram at h, or nothing as soon as one site is found hidden (its cell empty):
   /// a rejected trial step then costs a fraction of a diagram.
   std::optional<PowerCells> if_none_hidden(const Eigen::VectorXd& h) const;
-  const Domain& domain() const { return domain_; }
-  const Points& sites() const { return sites_; }
 
  private:
   std::optional<PowerCells> build(const Eigen::VectorXd& h, bool fail_if_hidden) const;
