@@ -8,13 +8,17 @@ PACKAGES=(
   libeigen3-dev libcgal-dev libgmp-dev libmpfr-dev libboost-dev
   libopenmesh-dev libsuitesparse-dev
   # CHOLMOD's supernodal Cholesky runs on BLAS; with this installed, Debian's alternatives
-  # give it OpenBLAS (the single-threaded build: no spinning threads in a worker pool).
-  libopenblas0-serial
+  # give it OpenBLAS. The pthread build, not the serial one: only it locks its buffers, so
+  # two threads may factor at once; the core sets it to one thread per call
+  # (single_threaded_blas in core/common/parallel.hpp).
+  libopenblas0-pthread
   libspdlog-dev libfmt-dev libcli11-dev nlohmann-json3-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libsqlite3-dev libssl-dev libcairo2-dev
   libgtest-dev libgmock-dev googletest libbenchmark-dev
   python3
+  # Tests: POT's exact EMD, the independent check of our Wasserstein distances.
+  python3-numpy python3-pot
 )
 
 missing=()

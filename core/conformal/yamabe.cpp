@@ -11,6 +11,7 @@
 
 #include "common/check.hpp"
 #include "common/error.hpp"
+#include "common/parallel.hpp"
 #include "numeric/krylov.hpp"
 
 namespace brenier::conformal {
@@ -128,6 +129,7 @@ struct KeptFactor {
   // added vertices -- can still use it.
   std::vector<int> vertex_of_row, row_of_vertex;
   KeptFactor() {
+    single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
     llt.cholmod().print = 0;  // CHOLMOD's own messages off; failures are checked via info()
     ldlt.cholmod().print = 0;
   }

@@ -51,43 +51,6 @@ AreaPreservingMap starting_from(conformal::ConformalMap c) {
   return out;
 }
 
-// The OMT map from `domain` to the sites with masses nu (Alg. 2). The sites are our
-// conformal map's, not the caller's: where it crowds vertices below double precision
-// (coincident sites), that is the method's limit, not bad input.
-OmtResult transport(const mesh::TriMesh& m, const Domain& domain, const Points& sites, const Eigen::VectorXd& nu,
-                    const OmtOptions& opt) {
-  OmtResult r;
-  try {
-    r = solve_omt(domain, sites, nu, opt);
-  } catch (const Error& e) {
-    if (e.code() != ErrorCode::kInvalidArgument) throw;
-    fail(ErrorCode::kNotConverged, std::string("the conformal map crowds vertices below double precision: ") + e.what());
-  }
-  if (!r.converged) {
-    // Say when the conformal map packs sites too tightly for double precision: a bisector
-    // is placed to ~1e-16 / |y_i - y_j| by heights of size one, so cells much below 1e-6
-    // across cannot be brought to their masses (and the damped steps hide them).
-    double closest = std::numeric_limits<double>::infinity();
-    for (int f = 0; f < m.num_faces(); ++f)
-      for (int k = 0; k < 3; ++k)
-        closest = std::min(closest, (sites.row(m.F(f, k)) - sites.row(m.F(f, (k + 1) % 3))).norm());
-    char buf[300];
-    std::snprintf(buf, sizeof buf,
-                  "the optimal transport did not converge: max relative cell-mass error %.2e after %d Newton iterations",
-                  r.max_relative_error, r.iterations);
-    std::string what = buf;
-    if (closest < 1e-5) {
-      std::snprintf(buf, sizeof buf,
-                    "; the conformal map puts neighbouring vertices as close as %.1e, below what double precision "
-                    "resolves",
-                    closest);
-      what += buf;
-    }
-    fail(ErrorCode::kNotConverged, what);
-  }
-  return r;
-}
-
 // Folds the local untangling on the sphere left, repaired one cluster at a time: the cap of
 // 60 degrees around a folded face goes onto its tangent plane by the gnomonic projection,
 // under which a chord triangle is outward-facing exactly when its image turns
@@ -167,6 +130,41 @@ void repair_sphere_folds(const mesh::TriMesh& m, AreaPreservingMap& out) {
 
 }  // namespace
 
+OmtResult transport_to_mesh_sites(const mesh::TriMesh& m, const Domain& domain, const Points& sites, const Eigen::VectorXd& nu,
+                    const OmtOptions& opt) {
+  OmtResult r;
+  try {
+    r = solve_omt(domain, sites, nu, opt);
+  } catch (const Error& e) {
+    if (e.code() != ErrorCode::kInvalidArgument) throw;
+    fail(ErrorCode::kNotConverged, std::string("the conformal map crowds vertices below double precision: ") + e.what());
+  }
+  if (!r.converged) {
+    // Say when the conformal map packs sites too tightly for double precision: a bisector
+    // is placed to ~1e-16 / |y_i - y_j| by heights of size one, so cells much below 1e-6
+    // across cannot be brought to their masses (and the damped steps hide them).
+    double closest = std::numeric_limits<double>::infinity();
+    for (int f = 0; f < m.num_faces(); ++f)
+      for (int k = 0; k < 3; ++k)
+        closest = std::min(closest, (sites.row(m.F(f, k)) - sites.row(m.F(f, (k + 1) % 3))).norm());
+    char buf[300];
+    std::snprintf(buf, sizeof buf,
+                  "the optimal transport did not converge: max relative cell-mass error %.2e after %d Newton iterations",
+                  r.max_relative_error, r.iterations);
+    std::string what = buf;
+    if (closest < 1e-5) {
+      std::snprintf(buf, sizeof buf,
+                    "; the conformal map puts neighbouring vertices as close as %.1e, below what double precision "
+                    "resolves",
+                    closest);
+      what += buf;
+    }
+    fail(ErrorCode::kNotConverged, what);
+  }
+  return r;
+}
+
+
 AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
   const int nv = m.num_vertices();
   const Eigen::VectorXd nu = weighted_masses(m, opt);
@@ -175,7 +173,7 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   // (2) sites p_i = phi(v_i), masses nu_i scaled to the disk's area pi inside solve_omt;
   // (3) the OMT map tau from the uniform disk to (p, nu).
   Points sites = out.conformal.positions.leftCols(2);
-  out.omt = transport(m, Domain::unit_disk(), sites, nu, opt.omt);
+  out.omt = transport_to_mesh_sites(m, Domain::unit_disk(), sites, nu, opt.omt);
   // (4) tau^{-1} o phi: each vertex goes to the centroid of its cell W_i = tau^{-1}(p_i).
   out.positions = mesh::Vertices::Zero(nv, 3);
   out.positions.leftCols(2) = out.omt.cells.centroid;
@@ -219,7 +217,7 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   const mesh::Vertices Y = X * R.transpose();  // rows R x
   Points sites(nv, 2);
   for (int v = 0; v < nv; ++v) sites.row(v) << Y(v, 0) / (1 - Y(v, 2)), Y(v, 1) / (1 - Y(v, 2));
-  out.omt = transport(m, Domain::stereographic_sphere(), sites, nu, opt.omt);
+  out.omt = transport_to_mesh_sites(m, Domain::stereographic_sphere(), sites, nu, opt.omt);
   // Each vertex to its cell's centroid on the sphere, turned back.
   out.positions = out.omt.cells.sphere_centroid * R;  // rows R^T c
   if (opt.t > 0)

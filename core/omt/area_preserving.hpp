@@ -33,6 +33,13 @@ struct AreaPreservingMap {
 /// Vertex masses of eq. 3.30: one third of the adjacent face areas.
 Eigen::VectorXd vertex_masses(const mesh::TriMesh& mesh);
 
+/// The OMT map from `domain` to the sites (the images of m's vertices under a map of ours,
+/// e.g. its conformal map) with masses nu (Alg. 2). Coincident sites or a transport that
+/// does not converge are the map's limit, not bad input: Error(kNotConverged), saying when
+/// the map puts neighbouring vertices closer than double precision resolves.
+OmtResult transport_to_mesh_sites(const mesh::TriMesh& m, const Domain& domain, const Points& sites,
+                                  const Eigen::VectorXd& nu, const OmtOptions& options);
+
 /// With options.t > 0, the map phi_t between the area-preserving map phi_0 and the conformal
 /// map phi_1 (sec. 3.2.8): phi_t = grad u_t o phi_0 with u_t = (1 - t) |x|^2 / 2 + t u_1,
 /// where grad u_1 is the OT map (the cell W_i to the site p_i = phi_1(v_i)), so vertex i goes

@@ -9,6 +9,7 @@
 
 #include "common/check.hpp"
 #include "common/error.hpp"
+#include "common/parallel.hpp"
 #include "numeric/krylov.hpp"
 
 namespace brenier::omt {
@@ -101,7 +102,18 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   // u_h = max <x, y_i> + h_i that is h_i = -|y_i|^2 / 2 (equal power weights).
   r.h = -0.5 * sites.rowwise().squaredNorm();
   const PowerDiagrams diagram(domain, sites);
-  r.cells = diagram(r.h);
+  if (opt.initial_h.size() != 0) {
+    if (opt.initial_h.size() != n || !opt.initial_h.allFinite())
+      invalid("initial heights: " + std::to_string(opt.initial_h.size()) + " finite values needed for " +
+              std::to_string(n) + " sites");
+    std::optional<PowerCells> c = diagram.if_none_hidden(opt.initial_h);
+    if (c && c->empty_cells == 0) {
+      r.h = opt.initial_h;
+      r.cells = std::move(*c);
+      r.warm_started = true;
+    }
+  }
+  if (!r.warm_started) r.cells = diagram(r.h);
   r.max_relative_error = max_relative(r.cells.mass, nu);
   if (n == 1) {
     r.converged = true;
@@ -130,6 +142,7 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   // The Newton systems are solved by conjugate-gradient-like GMRES preconditioned with the
   // sparse Cholesky factor of an earlier Hessian (CHOLMOD supernodal), refactored only when
   // the kept one needs more than `budget` iterations: consecutive Hessians differ little.
+  single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
   Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt;
   llt.cholmod().print = 0;
   // AMD alone: by default CHOLMOD also tries METIS when AMD's fill is high, which for 1M

@@ -20,6 +20,9 @@ struct OmtOptions {
   double tolerance = 1e-8;
   int max_iterations = 200;
   Progress progress;
+  /// Heights to start from (one per site; empty: the Voronoi diagram of Alg. 2), e.g. the
+  /// solution of a nearby problem. A start that leaves a cell empty falls back to Voronoi.
+  Eigen::VectorXd initial_h;
 };
 
 struct OmtResult {
@@ -31,6 +34,7 @@ struct OmtResult {
   bool converged = false;
   long linear_iterations = 0;  // preconditioned CG iterations, summed
   int factorizations = 0;
+  bool warm_started = false;  // options.initial_h was used (it left no cell empty)
 };
 
 /// The OT map from the uniform density on `domain` to the sites with masses `nu` (any

@@ -358,7 +358,29 @@ void integrate_sphere(const LabelledPolygon& P, const Vec2& site, CellResult& ou
   }
 }
 
+// Regular triangulation of the weighted points (y_i, |y_i|^2 + 2 h_i), inserted in `order`:
+// its adjacency is the power diagram's; hidden points have empty cells. A hidden point
+// stays hidden as more are inserted (the lifted lower hull only descends), so with
+// `fail_if_hidden` it stops, returning false, at the first one found.
+bool triangulate(const Points& sites, const Eigen::VectorXd& h, const std::vector<int>& order, bool fail_if_hidden,
+                 RT& rt) {
+  const int n = static_cast<int>(sites.rows());
+  RT::Face_handle hint;
+  const int check_every = std::max(256, n / 64);
+  for (int k = 0; k < n; ++k) {
+    const int i = order[k];
+    const WP p(K::Point_2(sites(i, 0), sites(i, 1)), sites.row(i).squaredNorm() + 2 * h[i]);
+    RT::Vertex_handle v = rt.insert(p, hint);
+    if (v == RT::Vertex_handle()) continue;
+    v->info() = i;
+    hint = v->face();
+    if (fail_if_hidden && (k + 1) % check_every == 0 && rt.number_of_hidden_vertices() > 0) return false;
+  }
+  return !(fail_if_hidden && rt.number_of_hidden_vertices() > 0);
+}
+
 }  // namespace
+
 
 Domain Domain::unit_disk() { return Domain{}; }
 
@@ -525,23 +547,8 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
   const int n = static_cast<int>(sites.rows());
   if (h.size() != n) invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(n) + " sites");
   if (!h.allFinite()) invalid("heights must be finite");
-  // Regular triangulation of the weighted points (y_i, |y_i|^2 + 2 h_i): its adjacency is
-  // the power diagram's; hidden points have empty cells. A hidden point stays hidden as
-  // more are inserted (the lifted lower hull only descends), so a caller that rejects any
-  // empty cell can stop at the first one found.
   RT rt;
-  RT::Face_handle hint;
-  const int check_every = std::max(256, n / 64);
-  for (int k = 0; k < n; ++k) {
-    const int i = order_[k];
-    const WP p(K::Point_2(sites(i, 0), sites(i, 1)), sites.row(i).squaredNorm() + 2 * h[i]);
-    RT::Vertex_handle v = rt.insert(p, hint);
-    if (v == RT::Vertex_handle()) continue;
-    v->info() = i;
-    hint = v->face();
-    if (fail_if_hidden && (k + 1) % check_every == 0 && rt.number_of_hidden_vertices() > 0) return std::nullopt;
-  }
-  if (fail_if_hidden && rt.number_of_hidden_vertices() > 0) return std::nullopt;
+  if (!triangulate(sites, h, order_, fail_if_hidden, rt)) return std::nullopt;
   // Neighbour lists (CSR) from one pass over the triangulation's edges.
   std::vector<int> start(n + 1, 0), nbr;
   std::vector<char> present(n, 0);
@@ -630,6 +637,39 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
     if (!(out.mass[i] > 0)) ++out.empty_cells;
     for (int k = start[i]; k < start[i + 1]; ++k)
       if (i < nbr[k] && slot_length[k] > 0) out.edges.push_back({i, nbr[k], slot_length[k]});
+  }
+  return out;
+}
+
+std::vector<int> PowerDiagrams::locate(const Eigen::VectorXd& h, const Points& queries) const {
+  const int n = static_cast<int>(sites_.rows());
+  if (h.size() != n) invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(n) + " sites");
+  if (!h.allFinite()) invalid("heights must be finite");
+  if (!queries.allFinite()) invalid("query points must be finite");
+  RT rt;
+  triangulate(sites_, h, order_, false, rt);
+  std::vector<int> out(queries.rows(), -1);
+  if (rt.number_of_vertices() == 0) return out;
+  // Greedy walk (as CGAL's nearest_power_vertex, but from the previous answer): move to a
+  // neighbour of smaller power distance until none is; on a regular triangulation the local
+  // minimum is the global one. Exact predicates decide every comparison.
+  const auto closer = K().compare_power_distance_2_object();
+  RT::Vertex_handle v = rt.finite_vertices_begin();
+  for (Eigen::Index q = 0; q < queries.rows(); ++q) {
+    const K::Point_2 p(queries(q, 0), queries(q, 1));
+    for (bool moved = true; moved;) {
+      moved = false;
+      RT::Vertex_circulator c = rt.incident_vertices(v), first = c;
+      if (c == nullptr) break;
+      do {
+        if (!rt.is_infinite(c) && closer(p, c->point(), v->point()) == CGAL::SMALLER) {
+          v = c;
+          moved = true;
+          break;
+        }
+      } while (++c != first);
+    }
+    out[q] = v->info();
   }
   return out;
 }

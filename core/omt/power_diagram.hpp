@@ -98,6 +98,9 @@ class PowerDiagrams {
   /// The diagram at h, or nothing as soon as one site is found hidden (its cell empty):
   /// a rejected trial step then costs a fraction of a diagram.
   std::optional<PowerCells> if_none_hidden(const Eigen::VectorXd& h) const;
+  /// For each query point x, the site whose cell at heights h holds it (argmax_i <x, y_i> +
+  /// h_i, exact predicates; ties go to either); the plane's cells, unclipped by the domain.
+  std::vector<int> locate(const Eigen::VectorXd& h, const Points& queries) const;
 
  private:
   std::optional<PowerCells> build(const Eigen::VectorXd& h, bool fail_if_hidden) const;

@@ -38,6 +38,8 @@ struct MeshInputOptions {
 void add_inspect(CLI::App& app, Action& action);
 void add_map(CLI::App& app, Action& action);
 void add_omt_bench(CLI::App& app, Action& action);
+/// distance, matrix, merge, mds and knn.
+void add_distance(CLI::App& app, Action& action);
 
 /// JSON of a cleaning report's problems: [{severity, code, message, count}, ...].
 nlohmann::json problems_json(const mesh::Report& report);

@@ -44,6 +44,7 @@ int main(int argc, char** argv) {
   brenier::tools::add_inspect(app, action);
   brenier::tools::add_map(app, action);
   brenier::tools::add_omt_bench(app, action);
+  brenier::tools::add_distance(app, action);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -1,0 +1,168 @@
+#include "distance/distance.hpp"
+
+#include <unsupported/Eigen/FFT>
+
+#include <algorithm>
+#include <cmath>
+#include <complex>
+#include <vector>
+
+#include "common/error.hpp"
+
+namespace brenier::distance {
+
+const char* method_name(Method m) { return m == Method::kWasserstein ? "wasserstein" : "omt-linear"; }
+
+Method parse_method(const std::string& name) {
+  if (name == "wasserstein") return Method::kWasserstein;
+  if (name == "omt-linear") return Method::kOmtLinear;
+  invalid("unknown distance method '" + name + "' (wasserstein or omt-linear)");
+}
+
+namespace {
+
+using cd = std::complex<double>;
+
+void require_comparable(const Shape& a, const Shape& b) {
+  if (a.markers != b.markers)
+    invalid("'" + a.name + "' and '" + b.name + "': give markers for both shapes or for neither");
+  if (a.samples.rows() != b.samples.rows() || a.samples.cols() != b.samples.cols())
+    invalid("'" + a.name + "' and '" + b.name + "' were sampled on different quadratures");
+}
+
+struct Turn {
+  int shift = 0;     // T_b's samples move `shift` places along each ring
+  double angle = 0;  // 2 pi shift / angles
+};
+
+// The turn R minimizing sum_q |a_q - (R T_b R^{-1})(x_q)|^2. On ring r, point k sits at
+// angle phi_k, and R^{-1} x_{r,k} = x_{r,k-s} for R the turn by 2 pi s / A, so the turned
+// map's sample is e^{i theta_s} b_{r,k-s} and the sum is |a|^2 + |b|^2 - 2 Re(e^{i theta_s}
+// c(s)) with c(s) = sum_{r,k} conj(a_{r,k}) b_{r,k-s}. By the DFTs of the rings (a_hat,
+// b_hat), c(s) = (1/A) sum_m conj(a_hat_{r,m}) b_hat_{r,m} e^{-2 pi i m s / A}: one forward
+// transform of the ring-summed product gives every c(s).
+Turn best_turn(const Shape& a, const Shape& b) {
+  if (a.markers) return {};
+  const int R = static_cast<int>(a.samples.rows()), A = static_cast<int>(a.samples.cols());
+  std::vector<cd> x(A, cd(0, 0)), c(A);
+  for (int m = 0; m < A; ++m)
+    for (int r = 0; r < R; ++r) x[m] += std::conj(a.spectrum(r, m)) * b.spectrum(r, m);
+  Eigen::FFT<double> fft;
+  fft.fwd(c, x);
+  Turn best;
+  double top = -std::numeric_limits<double>::infinity();
+  for (int s = 0; s < A; ++s) {
+    const double theta = 2 * M_PI * s / A;
+    const double score = std::real(std::polar(1.0, theta) * c[s]);
+    if (score > top) {  // first maximum: the same turn on every run
+      top = score;
+      best = {s, theta};
+    }
+  }
+  return best;
+}
+
+// sum_q w |a_q - e^{i theta} b_{r,k-s}|^2, summed directly (the FFT only chose s).
+double squared_distance(const Shape& a, const Shape& b, const Turn& t) {
+  const int R = static_cast<int>(a.samples.rows()), A = static_cast<int>(a.samples.cols());
+  const cd turn = std::polar(1.0, t.angle);
+  double sum = 0;
+  for (int r = 0; r < R; ++r)
+    for (int k = 0; k < A; ++k) sum += std::norm(a.samples(r, k) - turn * b.samples(r, ((k - t.shift) % A + A) % A));
+  return sum * M_PI / (static_cast<double>(R) * A);
+}
+
+std::string turn_words(const Shape& a, int angles) {
+  if (a.markers) return "markers (interior vertex at 0, boundary vertex at 1)";
+  return "Moebius centring (area centre of mass at 0), rotation minimized over multiples of 2 pi / " +
+         std::to_string(angles);
+}
+
+// One direction of Alg. 5: the source is src's density, the sites dst's vertex images turned
+// by `angle`, with dst's masses. Returns W2^2 (eq. 3.31); `h` is the start (may be empty) and
+// gets the solution's heights.
+double one_way(const Shape& src, const Shape& dst, double angle, const WassersteinOptions& opt, Eigen::VectorXd& h,
+               PairResult& out) {
+  const omt::Domain domain = omt::Domain::piecewise_constant(src.sites, src.tri, src.density);
+  const double c = std::cos(angle), s = std::sin(angle);
+  omt::Points sites(dst.sites.rows(), 2);
+  sites.col(0) = c * dst.sites.col(0) - s * dst.sites.col(1);
+  sites.col(1) = s * dst.sites.col(0) + c * dst.sites.col(1);
+  omt::OmtOptions o;
+  o.tolerance = opt.tolerance;
+  o.progress = opt.progress;
+  o.initial_h = h.size() ? h : dst.h;  // the uniform disk's heights are a fair start
+  omt::OmtResult r;
+  try {
+    r = omt::solve_omt(domain, sites, dst.mass, o);
+  } catch (const Error& e) {
+    if (e.code() != ErrorCode::kInvalidArgument && e.code() != ErrorCode::kNotConverged) throw;
+    // The shapes were each mapped and transported already: a failure here is the
+    // method's limit on this pair (cells too small for doubles), reported as such.
+    out.converged = false;
+    out.max_relative_error = std::numeric_limits<double>::infinity();
+    return std::numeric_limits<double>::quiet_NaN();
+  }
+  out.newton_iterations += r.iterations;
+  out.max_relative_error = std::max(out.max_relative_error, r.max_relative_error);
+  out.converged = out.converged && r.converged;
+  h = r.h;
+  return r.cells.second_moment.sum();
+}
+
+}  // namespace
+
+PairResult omt_linear(const Shape& a, const Shape& b) {
+  require_comparable(a, b);
+  const Turn t = best_turn(a, b);
+  PairResult out;
+  out.distance = std::sqrt(std::max(0.0, squared_distance(a, b, t)));
+  out.rotation = t.angle;
+  out.normalization = turn_words(a, static_cast<int>(a.samples.cols()));
+  return out;
+}
+
+PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions& opt) {
+  require_comparable(a, b);
+  if (!(opt.tolerance > 0)) invalid("the transport tolerance must be positive");
+  PairResult out;
+  const int A = static_cast<int>(a.samples.cols());
+  out.normalization = turn_words(a, A);
+  Eigen::VectorXd h_ab, h_ba;
+  struct Eval {
+    double angle, mean, forward, backward;
+  };
+  // d(A, R_theta B) both ways: the second direction turns A back instead (same thing, by the
+  // rotation invariance of both measures' disk).
+  auto evaluate = [&](double angle) {
+    Eval e{angle, 0, 0, 0};
+    e.forward = std::sqrt(std::max(0.0, one_way(a, b, angle, opt, h_ab, out)));
+    e.backward = std::sqrt(std::max(0.0, one_way(b, a, -angle, opt, h_ba, out)));
+    e.mean = 0.5 * (e.forward + e.backward);
+    return e;
+  };
+  const Turn t = best_turn(a, b);
+  Eval best = evaluate(t.angle);
+  if (!a.markers && opt.refine_rotation && out.converged) {
+    // A parabola through the distances at the turn and half a quadrature step either side;
+    // its vertex, if it is a minimum within two half-steps, is tried too.
+    const double step = M_PI / A;
+    const Eval lo = evaluate(t.angle - step), hi = evaluate(t.angle + step);
+    const double curvature = lo.mean + hi.mean - 2 * best.mean;
+    std::vector<Eval> tried = {lo, best, hi};
+    if (curvature > 0) {
+      const double offset = std::clamp(0.5 * step * (lo.mean - hi.mean) / curvature, -2 * step, 2 * step);
+      if (std::abs(offset) > 1e-3 * step) tried.push_back(evaluate(t.angle + offset));
+    }
+    for (const Eval& e : tried)
+      if (e.mean < best.mean) best = e;
+    out.normalization += ", refined by exact evaluations";
+  }
+  out.rotation = best.angle;
+  out.forward = best.forward;
+  out.backward = best.backward;
+  out.distance = out.converged ? best.mean : std::numeric_limits<double>::quiet_NaN();
+  return out;
+}
+
+}  // namespace brenier::distance

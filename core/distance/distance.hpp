@@ -1,0 +1,58 @@
+// Shape distances between two prepared surfaces (distance/shape.hpp).
+#pragma once
+
+#include <limits>
+#include <string>
+
+#include "distance/shape.hpp"
+#include "omt/omt.hpp"
+
+namespace brenier::distance {
+
+enum class Method { kWasserstein, kOmtLinear };
+const char* method_name(Method m);
+/// "wasserstein" or "omt-linear"; throws Error(kInvalidArgument) otherwise.
+Method parse_method(const std::string& name);
+
+struct PairResult {
+  double distance = 0;  // the reported distance
+  /// Wasserstein only: W2 with the first surface's density as the source and the second's
+  /// vertices as the sites, and the other way round; `distance` is their mean.
+  double forward = std::numeric_limits<double>::quiet_NaN();
+  double backward = std::numeric_limits<double>::quiet_NaN();
+  double rotation = 0;        // radians: the second surface's conformal image was turned by it
+  std::string normalization;  // what fixed the Moebius freedom, said in words
+  int newton_iterations = 0;  // of the transports solved for this pair
+  double max_relative_error = 0;  // their worst final cell-mass error
+  bool converged = true;
+};
+
+/// The OMT-map shape distance of Def. 2.24 as a linear embedding: the L2 distance between
+/// the two shapes' OMT maps of the uniform disk, T_a and T_b, by the fixed quadrature,
+///   d^2 = sum_q w_q |T_a(x_q) - T_b(x_q)|^2.
+/// Without markers the second map is turned, T_b -> R T_b R^{-1}, by the rotation R among the
+/// multiples of 2 pi / angles that minimizes d (the minimum over Moebius maps of Def. 2.24
+/// once both are centred): on the quadrature a turn is a cyclic shift of each ring, so all
+/// turns are scored at once by one cross-correlation (FFT) per pair. Over that finite group
+/// of isometries the minimum is a metric on the shapes (symmetric, triangle inequality).
+PairResult omt_linear(const Shape& a, const Shape& b);
+
+struct WassersteinOptions {
+  double tolerance = 1e-8;  // each transport's max relative cell-mass error
+  /// Without markers, refine the rotation of the second shape beyond the quadrature's
+  /// 2 pi / angles steps (a parabola through three exact evaluations, then its vertex).
+  bool refine_rotation = true;
+  omt::Progress progress;
+};
+
+/// The conformal Wasserstein distance (Alg. 5, eq. 3.31): the source is the first shape's
+/// pushed-forward area density (piecewise constant on its conformal image), the sites the
+/// second's conformal vertex images with their masses; semi-discrete OMT (Alg. 2) and
+///   W2^2 = sum_i int_{W_i} |x - p_i|^2 mu(x) dx.
+/// Computed both ways (the discretization makes them differ slightly); `distance` is the
+/// mean of the two W2. Without markers, the second shape is turned by the rotation found by
+/// omt_linear (then refined, see the options). A transport that does not converge makes
+/// converged false with its error, never a silent value.
+PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions& options = {});
+
+}  // namespace brenier::distance

@@ -1,0 +1,241 @@
+#include "distance/shape.hpp"
+
+#include <unsupported/Eigen/FFT>
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <vector>
+
+#include "common/error.hpp"
+#include "common/hash.hpp"
+#include "mesh/geometry.hpp"
+#include "omt/area_preserving.hpp"
+
+namespace brenier::distance {
+
+omt::Points Quadrature::points() const {
+  omt::Points p(static_cast<Eigen::Index>(rings) * angles, 2);
+  for (int k = 0; k < rings; ++k) {
+    const double r = std::sqrt((k + 0.5) / rings);
+    for (int j = 0; j < angles; ++j) {
+      const double a = 2 * M_PI * (j + 0.5) / angles;
+      p.row(static_cast<Eigen::Index>(k) * angles + j) << r * std::cos(a), r * std::sin(a);
+    }
+  }
+  return p;
+}
+
+double Quadrature::weight() const { return M_PI / (static_cast<double>(rings) * angles); }
+
+std::string ShapeOptions::fingerprint() const {
+  char buf[256];
+  std::snprintf(buf, sizeof buf, "disk;center=%d;boundary=%d;ktol=%.17g;otol=%.17g;quad=%dx%d",
+                center_vertex.value_or(-1), boundary_vertex.value_or(-1), conformal_tolerance, omt_tolerance,
+                quadrature.rings, quadrature.angles);
+  return buf;
+}
+
+std::string shape_key(const mesh::TriMesh& m, const ShapeOptions& opt) {
+  Sha256 h;
+  h.update("brenier-shape-v1\n" + opt.fingerprint() + "\n");
+  const long long counts[2] = {m.V.rows(), m.F.rows()};
+  h.update(counts, sizeof counts);
+  h.update(m.V.data(), sizeof(double) * m.V.size());
+  h.update(m.F.data(), sizeof(int) * m.F.size());
+  return h.hex();
+}
+
+Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const ShapeOptions& opt) {
+  if (opt.quadrature.rings < 1 || opt.quadrature.angles < 4)
+    invalid("the quadrature needs at least 1 ring and 4 angles");
+  if (opt.center_vertex.has_value() != opt.boundary_vertex.has_value())
+    invalid(name + ": give both markers (an interior and a boundary vertex) or neither");
+  Shape s;
+  s.name = name;
+  s.key = shape_key(m, opt);
+  s.vertices = m.num_vertices();
+  s.faces = m.num_faces();
+  // Alg. 5 step 2: the conformal map onto the unit disk, Moebius-normalized (Thm 2.13).
+  conformal::ConformalOptions copt;
+  copt.tolerance = opt.conformal_tolerance;
+  copt.center_vertex = opt.center_vertex;
+  copt.boundary_vertex = opt.boundary_vertex;
+  const conformal::ConformalMap c = conformal::map_to_disk(m, copt);
+  if (!c.converged)
+    fail(ErrorCode::kNotConverged, name + ": the conformal map did not converge (max |K - Kbar| = " +
+                                       std::to_string(c.max_curvature_error) + ")");
+  if (c.folded_faces > 0)
+    fail(ErrorCode::kNotConverged, name + ": the conformal map folds " + std::to_string(c.folded_faces) + " faces");
+  s.markers = opt.center_vertex.has_value();
+  s.normalization = c.normalization;
+  s.conformal_iterations = c.newton_iterations;
+  s.curvature_error = c.max_curvature_error;
+  s.sites = c.positions.leftCols<2>();
+  // Alg. 5 step 1: area pi. Vertex masses of eq. 3.30 and the density of eq. 2.57 per face.
+  const Eigen::VectorXd area = mesh::face_areas(m) * (M_PI / mesh::total_area(m));
+  s.tri = m.F;
+  s.mass = Eigen::VectorXd::Zero(m.num_vertices());
+  s.density.resize(m.num_faces());
+  for (int f = 0; f < m.num_faces(); ++f) {
+    for (int k = 0; k < 3; ++k) s.mass[m.F(f, k)] += area[f] / 3;
+    const Eigen::Vector2d a = s.sites.row(m.F(f, 0)), b = s.sites.row(m.F(f, 1)), d = s.sites.row(m.F(f, 2));
+    const double image = 0.5 * ((b - a).x() * (d - a).y() - (b - a).y() * (d - a).x());
+    if (!(image > 0))
+      fail(ErrorCode::kNotConverged, name + ": face " + std::to_string(f) + " has no area in the conformal image");
+    s.density[f] = area[f] / image;
+  }
+  // Def. 2.24's OMT map: the transport from the uniform disk onto the vertex measure
+  // (Alg. 2), sampled on the quadrature: each point takes the site of its power cell.
+  omt::OmtOptions oopt;
+  oopt.tolerance = opt.omt_tolerance;
+  const omt::OmtResult r = omt::transport_to_mesh_sites(m, omt::Domain::unit_disk(), s.sites, s.mass, oopt);
+  s.h = r.h;
+  s.omt_iterations = r.iterations;
+  s.omt_error = r.max_relative_error;
+  const std::vector<int> cell =
+      omt::PowerDiagrams(omt::Domain::unit_disk(), s.sites, false).locate(r.h, opt.quadrature.points());
+  const int R = opt.quadrature.rings, A = opt.quadrature.angles;
+  s.samples.resize(R, A);
+  s.spectrum.resize(R, A);
+  Eigen::FFT<double> fft;
+  std::vector<std::complex<double>> ring(A), freq(A);
+  for (int k = 0; k < R; ++k) {
+    for (int j = 0; j < A; ++j) {
+      const int i = cell[static_cast<size_t>(k) * A + j];
+      ring[j] = {s.sites(i, 0), s.sites(i, 1)};
+      s.samples(k, j) = ring[j];
+    }
+    fft.fwd(freq, ring);
+    for (int j = 0; j < A; ++j) s.spectrum(k, j) = freq[j];
+  }
+  return s;
+}
+
+// ---- cache files -------------------------------------------------------------------------
+
+namespace {
+
+constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '1'};
+
+struct Writer {
+  std::ostream& os;
+  template <class T>
+  void pod(const T& v) { os.write(reinterpret_cast<const char*>(&v), sizeof v); }
+  void str(const std::string& s) {
+    pod<long long>(static_cast<long long>(s.size()));
+    os.write(s.data(), static_cast<std::streamsize>(s.size()));
+  }
+  template <class M>
+  void mat(const M& m) {
+    pod<long long>(m.rows());
+    pod<long long>(m.cols());
+    os.write(reinterpret_cast<const char*>(m.data()), static_cast<std::streamsize>(sizeof(typename M::Scalar) * m.size()));
+  }
+};
+
+struct Reader {
+  std::istream& is;
+  bool ok = true;
+  template <class T>
+  void pod(T& v) {
+    if (ok) ok = static_cast<bool>(is.read(reinterpret_cast<char*>(&v), sizeof v));
+  }
+  void str(std::string& s) {
+    long long n = -1;
+    pod(n);
+    if (!ok || n < 0 || n > (1 << 20)) return void(ok = false);
+    s.resize(static_cast<size_t>(n));
+    ok = static_cast<bool>(is.read(s.data(), n));
+  }
+  template <class M>
+  void mat(M& m) {
+    long long r = -1, c = -1;
+    pod(r);
+    pod(c);
+    if (!ok || r < 0 || c < 0 || r * c > (1LL << 31)) return void(ok = false);
+    if ((M::RowsAtCompileTime != Eigen::Dynamic && r != M::RowsAtCompileTime) ||
+        (M::ColsAtCompileTime != Eigen::Dynamic && c != M::ColsAtCompileTime))
+      return void(ok = false);
+    m.resize(r, c);
+    ok = static_cast<bool>(is.read(reinterpret_cast<char*>(m.data()), static_cast<std::streamsize>(sizeof(typename M::Scalar) * m.size())));
+  }
+};
+
+}  // namespace
+
+void save_shape(const Shape& s, const std::string& path) {
+  // A name of its own per process and call: tiles on several machines may share the cache.
+  static std::atomic<long> serial{0};
+  const std::string tmp = path + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(serial++);
+  {
+    std::ofstream os(tmp, std::ios::binary | std::ios::trunc);
+    if (!os) fail(ErrorCode::kNotFound, "cannot write the cache file " + tmp);
+    Writer w{os};
+    os.write(kMagic, sizeof kMagic);
+    w.str(s.key);
+    w.str(s.name);
+    w.str(s.normalization);
+    w.pod(s.vertices);
+    w.pod(s.faces);
+    w.pod(s.markers);
+    w.pod(s.conformal_iterations);
+    w.pod(s.curvature_error);
+    w.pod(s.omt_iterations);
+    w.pod(s.omt_error);
+    w.mat(s.sites);
+    w.mat(s.mass);
+    w.mat(s.tri);
+    w.mat(s.density);
+    w.mat(s.h);
+    w.mat(s.samples);
+    w.mat(s.spectrum);
+    os.write(kMagic, sizeof kMagic);  // a whole file ends as it begins
+    if (!os.flush()) fail(ErrorCode::kResourceExhausted, "cannot write the cache file " + tmp);
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    std::remove(tmp.c_str());
+    fail(ErrorCode::kNotFound, "cannot move the cache file into place: " + path);
+  }
+}
+
+bool load_shape(const std::string& path, Shape& out) {
+  std::ifstream is(path, std::ios::binary);
+  if (!is) return false;
+  char magic[8];
+  if (!is.read(magic, 8) || !std::equal(magic, magic + 8, kMagic)) return false;
+  Shape s;
+  Reader r{is};
+  r.str(s.key);
+  r.str(s.name);
+  r.str(s.normalization);
+  r.pod(s.vertices);
+  r.pod(s.faces);
+  r.pod(s.markers);
+  r.pod(s.conformal_iterations);
+  r.pod(s.curvature_error);
+  r.pod(s.omt_iterations);
+  r.pod(s.omt_error);
+  r.mat(s.sites);
+  r.mat(s.mass);
+  r.mat(s.tri);
+  r.mat(s.density);
+  r.mat(s.h);
+  r.mat(s.samples);
+  r.mat(s.spectrum);
+  if (!r.ok || !is.read(magic, 8) || !std::equal(magic, magic + 8, kMagic)) return false;
+  if (s.sites.rows() != s.vertices || s.mass.size() != s.vertices || s.tri.rows() != s.faces ||
+      s.density.size() != s.faces || s.h.size() != s.vertices || s.samples.rows() != s.spectrum.rows() ||
+      s.samples.cols() != s.spectrum.cols())
+    return false;
+  if (s.faces > 0 && (s.tri.minCoeff() < 0 || s.tri.maxCoeff() >= s.vertices)) return false;
+  out = std::move(s);
+  return true;
+}
+
+}  // namespace brenier::distance

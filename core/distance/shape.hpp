@@ -1,0 +1,78 @@
+// What the shape distances need of one surface, computed once and cached by content hash
+// (dissertation Alg. 5 steps 1-4 and Def. 2.24): its normalized conformal image of the unit
+// disk with the pushed-forward area density, its vertex measure, and the optimal transport
+// map from the uniform disk onto that measure sampled on a fixed quadrature.
+#pragma once
+
+#include <Eigen/Core>
+#include <complex>
+#include <string>
+
+#include "conformal/conformal_map.hpp"
+#include "mesh/mesh.hpp"
+#include "omt/power_diagram.hpp"
+
+namespace brenier::distance {
+
+/// A fixed quadrature of the unit disk: `rings` rings of equal area, `angles` points equally
+/// spaced on each (ring k at radius sqrt((k + 1/2) / rings), point j at angle
+/// 2 pi (j + 1/2) / angles), every point weighing pi / (rings * angles). Turning by a
+/// multiple of 2 pi / angles permutes the points, which makes the minimum over those
+/// rotations cheap and exact (see omt_linear).
+struct Quadrature {
+  int rings = 64;
+  int angles = 256;
+  omt::Points points() const;  // ring-major: point (k, j) is row k * angles + j
+  double weight() const;
+};
+
+struct ShapeOptions {
+  /// Markers of Def. 2.24 / Thm 2.13: an interior vertex sent to 0 and a boundary vertex to
+  /// 1. Without them, the Moebius map that centres the pushed-forward area, and the
+  /// distances minimize over rotations.
+  std::optional<int> center_vertex, boundary_vertex;
+  double conformal_tolerance = 1e-7;  // max |K - Kbar|
+  double omt_tolerance = 1e-8;        // the embedding's transport (max relative cell-mass error)
+  Quadrature quadrature;
+  /// A string of every option that changes the result (part of the cache key).
+  std::string fingerprint() const;
+};
+
+struct Shape {
+  std::string name;
+  std::string key;  // SHA-256 of the mesh's arrays and the options' fingerprint
+  int vertices = 0, faces = 0;
+  bool markers = false;          // the normalization used the markers
+  std::string normalization;     // how the Moebius freedom was fixed
+  // Alg. 5 steps 1-4: the surface scaled to area pi, its conformal image of the disk,
+  // vertex masses (eq. 3.30) summing to pi, and per face the pushed-forward area density
+  // (surface area / image area: e^{2 lambda} of eq. 2.57, constant on each image triangle).
+  omt::Points sites;
+  Eigen::VectorXd mass;
+  mesh::Faces tri;
+  Eigen::VectorXd density;
+  // The OMT map of Def. 2.24 from the uniform disk onto (sites, mass) (Alg. 2): heights h
+  // and, at each quadrature point, the site of its cell, as complex numbers (ring by ring).
+  Eigen::VectorXd h;
+  Eigen::MatrixXcd samples;   // rings x angles
+  Eigen::MatrixXcd spectrum;  // each ring's discrete Fourier transform over the angles
+  int conformal_iterations = 0;
+  double curvature_error = 0;
+  int omt_iterations = 0;
+  double omt_error = 0;
+};
+
+/// Prepares a topological disk: throws Error(kInvalidArgument) for another topology or bad
+/// markers, Error(kNotConverged) naming the step when the conformal map or the transport
+/// does not converge (a shape is never used half-computed).
+Shape prepare_shape(const mesh::TriMesh& mesh, const std::string& name, const ShapeOptions& options);
+
+/// The cache key prepare_shape would give (computable before the work).
+std::string shape_key(const mesh::TriMesh& mesh, const ShapeOptions& options);
+
+/// Cache files: a shape written whole (temporary file, then rename) and read back exactly.
+/// load_shape returns false for a missing, truncated or foreign file (never throws for one).
+void save_shape(const Shape& shape, const std::string& path);
+bool load_shape(const std::string& path, Shape& shape);
+
+}  // namespace brenier::distance

@@ -1,0 +1,437 @@
+// brenier-compute distance | matrix | merge | mds | knn: shape distances between surfaces,
+// distance matrices over datasets (in tiles for job arrays) and their analysis (sec. 4.4).
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <sstream>
+
+#include "commands.hpp"
+#include "common/error.hpp"
+#include "common/parallel.hpp"
+#include "distance/analysis.hpp"
+#include "distance/matrix.hpp"
+#include "mesh/geometry.hpp"
+
+namespace brenier::tools {
+namespace {
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+/// Options every distance command shares.
+struct ShapeFlags {
+  mesh::CleanOptions clean;
+  bool cut = false;
+  std::string method = "wasserstein";
+  double tolerance = 1e-8;
+  bool no_refine = false;
+  int rings = 64, angles = 256;
+  void add_to(CLI::App* cmd) {
+    cmd->add_option("--method", method, "wasserstein (exact, Alg. 5) or omt-linear (Def. 2.24 as an embedding)")
+        ->check(CLI::IsMember({"wasserstein", "omt-linear"}));
+    cmd->add_option("--domain", domain, "disk (closed genus-0 surfaces with --cut-hole)")
+        ->check(CLI::IsMember({"disk", "sphere"}));
+    cmd->add_flag("--cut-hole", cut, "open closed genus-0 meshes into disks by removing one vertex's star");
+    cmd->add_option("--tolerance", tolerance, "max relative cell-mass error of each transport (default 1e-8)")
+        ->check(CLI::PositiveNumber);
+    cmd->add_flag("--no-refine", no_refine,
+                  "wasserstein without markers: keep the quadrature's rotation step (no exact refinement)");
+    cmd->add_option("--rings", rings, "quadrature rings of the OMT-map samples (default 64)")->check(CLI::Range(1, 4096));
+    cmd->add_option("--angles", angles, "quadrature angles per ring (default 256)")->check(CLI::Range(4, 65536));
+    cmd->add_flag("--merge-duplicates", clean.merge_duplicates, "merge vertices with identical coordinates");
+    cmd->add_flag("--keep-largest", clean.keep_largest_component, "keep the largest connected component");
+    cmd->add_flag("--fix-orientation", clean.fix_orientation, "orient each component consistently");
+  }
+  std::string domain = "disk";
+
+  distance::ShapeOptions shape_options() const {
+    if (domain == "sphere")
+      invalid("distances on the sphere domain are not implemented yet; map closed genus-0 surfaces onto the disk "
+              "with --domain disk --cut-hole");
+    distance::ShapeOptions o;
+    o.omt_tolerance = tolerance;
+    o.quadrature.rings = rings;
+    o.quadrature.angles = angles;
+    return o;
+  }
+  distance::WassersteinOptions wasserstein() const {
+    distance::WassersteinOptions w;
+    w.tolerance = tolerance;
+    w.refine_rotation = !no_refine;
+    return w;
+  }
+
+  // Reads, checks and (with --cut-hole) opens one surface; markers are input vertex numbers.
+  distance::ShapeInput load(const std::string& path, int center, int boundary) const {
+    mesh::CleanMesh cm = mesh::load_mesh(path, clean);
+    mesh::require_valid(cm, path);
+    std::vector<int> to_clean(static_cast<size_t>(cm.input_vertices), -1);
+    for (size_t i = 0; i < cm.vertex_origin.size(); ++i) to_clean[cm.vertex_origin[i]] = static_cast<int>(i);
+    distance::ShapeInput in;
+    in.name = std::filesystem::path(path).stem().string();
+    in.mesh = cm.mesh;
+    const mesh::Topology t = mesh::compute_topology(in.mesh);
+    if (cut && t.mesh_class == mesh::MeshClass::kSphere) {
+      mesh::CutHole h = mesh::cut_hole(in.mesh, std::nullopt);
+      std::vector<int> back(cm.vertex_origin.size(), -1);
+      for (size_t i = 0; i < h.vertex_origin.size(); ++i) back[h.vertex_origin[i]] = static_cast<int>(i);
+      for (int& v : to_clean) v = v >= 0 ? back[v] : -1;
+      in.mesh = std::move(h.mesh);
+    } else if (t.mesh_class != mesh::MeshClass::kDisk) {
+      invalid(path + ": is a " + std::string(mesh::class_name(t.mesh_class)) +
+              " mesh; shape distances on the disk need topological disks" +
+              (t.mesh_class == mesh::MeshClass::kSphere ? " (pass --cut-hole to open it)" : ""));
+    }
+    in.options = shape_options();
+    auto marker = [&](int v, const char* what) {
+      if (v < 0 || v >= cm.input_vertices || to_clean[v] < 0)
+        invalid(path + ": " + what + " " + std::to_string(v) + " is not a vertex of the mesh");
+      return to_clean[v];
+    };
+    if ((center >= 0) != (boundary >= 0)) invalid(path + ": give both markers (center and boundary) or neither");
+    if (center >= 0) {
+      in.options.center_vertex = marker(center, "center vertex");
+      in.options.boundary_vertex = marker(boundary, "boundary vertex");
+    }
+    return in;
+  }
+};
+
+// Names from file stems; the paths as given when two stems collide.
+void unique_names(std::vector<distance::ShapeInput>& shapes, const std::vector<std::string>& paths) {
+  std::map<std::string, int> count;
+  for (const auto& s : shapes) ++count[s.name];
+  for (size_t i = 0; i < shapes.size(); ++i)
+    if (count[shapes[i].name] > 1) shapes[i].name = paths[i];
+  count.clear();
+  for (const auto& s : shapes)
+    if (++count[s.name] > 1) invalid("the file " + s.name + " is given twice");
+}
+
+nlohmann::json pair_json(const distance::PairResult& r, const std::string& method) {
+  nlohmann::json j = {{"method", method},
+                      {"distance", r.distance},
+                      {"rotation_rad", r.rotation},
+                      {"normalization", r.normalization},
+                      {"converged", r.converged}};
+  if (method == "wasserstein") {
+    j["forward"] = r.forward;
+    j["backward"] = r.backward;
+    j["newton_iterations"] = r.newton_iterations;
+    j["max_relative_area_error"] = r.max_relative_error;
+  }
+  return j;
+}
+
+// ---- distance ----------------------------------------------------------------------------
+
+struct DistanceOptions {
+  ShapeFlags flags;
+  std::string a, b;
+  int center_a = -1, boundary_a = -1, center_b = -1, boundary_b = -1;
+  bool both = false, json = false;
+};
+
+int run_distance(const DistanceOptions& o) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const distance::Method method = distance::parse_method(o.flags.method);
+  std::vector<distance::ShapeInput> in = {o.flags.load(o.a, o.center_a, o.boundary_a),
+                                          o.flags.load(o.b, o.center_b, o.boundary_b)};
+  unique_names(in, {o.a, o.b});
+  std::vector<distance::Shape> s(2);
+  parallel_for(2, 2, [&](int k) { s[k] = distance::prepare_shape(in[k].mesh, in[k].name, in[k].options); });
+  const double t_shapes = seconds_since(t0);
+  const auto t1 = std::chrono::steady_clock::now();
+  const distance::PairResult r = method == distance::Method::kWasserstein
+                                     ? distance::wasserstein(s[0], s[1], o.flags.wasserstein())
+                                     : distance::omt_linear(s[0], s[1]);
+  const double t_pair = seconds_since(t1);
+  if (o.json) {
+    nlohmann::json j = pair_json(r, o.flags.method);
+    j["a"] = o.a;
+    j["b"] = o.b;
+    j["domain"] = "disk";
+    j["seconds"] = {{"total", seconds_since(t0)}, {"shapes", t_shapes}, {"pair", t_pair}};
+    for (const distance::Shape& x : s)
+      j["shapes"].push_back({{"name", x.name},
+                             {"vertices", x.vertices},
+                             {"faces", x.faces},
+                             {"key", x.key},
+                             {"conformal_newton_iterations", x.conformal_iterations},
+                             {"omt_newton_iterations", x.omt_iterations}});
+    std::cout << j.dump(2) << std::endl;
+  } else {
+    std::printf("%s %s %s: %.10g\n", o.flags.method.c_str(), s[0].name.c_str(), s[1].name.c_str(), r.distance);
+    if (o.both && method == distance::Method::kWasserstein)
+      std::printf("forward (source %s) %.10g, backward (source %s) %.10g\n", s[0].name.c_str(), r.forward,
+                  s[1].name.c_str(), r.backward);
+    std::printf("normalization: %s; rotation %.6f rad; %.3f s\n", r.normalization.c_str(), r.rotation,
+                seconds_since(t0));
+  }
+  if (!r.converged) {
+    char buf[200];
+    std::snprintf(buf, sizeof buf, "the transport did not converge (max relative cell-mass error %.2e)",
+                  r.max_relative_error);
+    fail(ErrorCode::kNotConverged, buf);
+  }
+  return kExitOk;
+}
+
+// ---- matrix ------------------------------------------------------------------------------
+
+struct MatrixCommand {
+  ShapeFlags flags;
+  std::vector<std::string> files;
+  std::string output, tile, cache, markers;
+  int jobs = 0;
+  bool progress = false, json = false;
+};
+
+// "file-or-name,center,boundary" per line.
+std::map<std::string, std::pair<int, int>> read_markers(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) fail(ErrorCode::kNotFound, "cannot read the markers file " + path);
+  std::map<std::string, std::pair<int, int>> out;
+  std::string line;
+  for (int n = 1; std::getline(in, line); ++n) {
+    if (line.empty() || line[0] == '#') continue;
+    std::stringstream ss(line);
+    std::string name, c, b, extra;
+    int ci = -1, bi = -1;
+    if (!std::getline(ss, name, ',') || !std::getline(ss, c, ',') || !std::getline(ss, b, ',') ||
+        std::getline(ss, extra, ',') || std::sscanf(c.c_str(), "%d", &ci) != 1 || std::sscanf(b.c_str(), "%d", &bi) != 1)
+      invalid(path + ":" + std::to_string(n) + ": expected file,center_vertex,boundary_vertex");
+    out[name] = {ci, bi};
+  }
+  return out;
+}
+
+int run_matrix(const MatrixCommand& o) {
+  const auto t0 = std::chrono::steady_clock::now();
+  distance::MatrixOptions mo;
+  mo.method = distance::parse_method(o.flags.method);
+  mo.wasserstein = o.flags.wasserstein();
+  mo.jobs = o.jobs > 0 ? o.jobs : hardware_threads();
+  mo.cache_dir = o.cache;
+  if (!o.tile.empty()) mo.tile = distance::parse_tile(o.tile);
+  const auto markers = o.markers.empty() ? std::map<std::string, std::pair<int, int>>{} : read_markers(o.markers);
+  std::vector<distance::ShapeInput> shapes(o.files.size());
+  parallel_for(static_cast<int>(o.files.size()), mo.jobs, [&](int k) {
+    const std::string& f = o.files[k];
+    auto it = markers.find(f);
+    if (it == markers.end()) it = markers.find(std::filesystem::path(f).stem().string());
+    shapes[k] = it == markers.end() ? o.flags.load(f, -1, -1) : o.flags.load(f, it->second.first, it->second.second);
+  });
+  if (!markers.empty())
+    for (const auto& s : shapes)
+      if (!s.options.center_vertex)
+        invalid("the markers file gives no markers for " + s.name + " (markers for all shapes or none)");
+  unique_names(shapes, o.files);
+  if (o.progress)
+    mo.progress = [](const std::string& stage, int done, int total) {
+      if (done == total || done % std::max(1, total / 20) == 0)
+        std::fprintf(stderr, "matrix: %s %d/%d\n", stage.c_str(), done, total);
+    };
+  const distance::MatrixTile tile = distance::compute_tile(shapes, mo);
+  std::vector<std::string> failed;
+  for (const distance::PairEntry& e : tile.pairs)
+    if (!e.result.converged) failed.push_back("(" + tile.names[e.i] + ", " + tile.names[e.j] + ")");
+  if (!o.tile.empty()) {
+    distance::write_tile(tile, o.output);
+  } else {
+    distance::write_matrix(o.output, tile.names, distance::assemble({tile}), tile.method);
+  }
+  if (o.json)
+    std::cout << nlohmann::json{{"output", o.output},
+                                {"method", tile.method},
+                                {"shapes", tile.names.size()},
+                                {"pairs", tile.pairs.size()},
+                                {"tile", {{"index", tile.tile.index}, {"count", tile.tile.count}}},
+                                {"not_converged", failed},
+                                {"seconds", seconds_since(t0)}}
+                     .dump(2)
+              << std::endl;
+  else
+    std::printf("wrote %s: %zu pairs of %zu shapes (%s), %.2f s\n", o.output.c_str(), tile.pairs.size(),
+                tile.names.size(), tile.method.c_str(), seconds_since(t0));
+  if (!failed.empty())
+    fail(ErrorCode::kNotConverged, std::to_string(failed.size()) + " pairs did not converge (written as nan): " +
+                                       failed.front() + (failed.size() > 1 ? " ..." : ""));
+  return kExitOk;
+}
+
+// ---- merge, mds, knn ---------------------------------------------------------------------
+
+int run_merge(const std::vector<std::string>& files, const std::string& output) {
+  std::vector<distance::MatrixTile> tiles;
+  for (const std::string& f : files) tiles.push_back(distance::read_tile(f));
+  const Eigen::MatrixXd d = distance::assemble(tiles);
+  distance::write_matrix(output, tiles.front().names, d, tiles.front().method);
+  int missing = 0;
+  for (Eigen::Index i = 0; i < d.size(); ++i) missing += !std::isfinite(d.data()[i]);
+  std::printf("wrote %s: %zu shapes from %zu tiles\n", output.c_str(), tiles.front().names.size(), tiles.size());
+  if (missing > 0)
+    fail(ErrorCode::kNotConverged, std::to_string(missing / 2) + " pairs did not converge (written as nan)");
+  return kExitOk;
+}
+
+int run_mds(const std::string& input, const std::string& output, int dims, bool json) {
+  std::vector<std::string> names;
+  Eigen::MatrixXd d;
+  distance::read_matrix(input, names, d);
+  const distance::Embedding e = distance::classical_mds(d, dims);
+  std::string csv = "name";
+  for (int c = 0; c < dims; ++c) csv += ",x" + std::to_string(c + 1);
+  csv += "\n";
+  for (size_t i = 0; i < names.size(); ++i) {
+    csv += names[i];
+    for (int c = 0; c < dims; ++c) {
+      char buf[32];
+      std::snprintf(buf, sizeof buf, ",%.17g", e.coordinates(static_cast<Eigen::Index>(i), c));
+      csv += buf;
+    }
+    csv += "\n";
+  }
+  std::ofstream os(output, std::ios::trunc);
+  if (!os || !(os << csv) || !os.flush()) invalid("cannot write " + output);
+  const std::vector<double> top(e.eigenvalues.data(), e.eigenvalues.data() + std::min<Eigen::Index>(dims, e.eigenvalues.size()));
+  if (json)
+    std::cout << nlohmann::json{{"output", output}, {"dims", dims}, {"eigenvalues", top},
+                                {"captured", e.captured}, {"negative", e.negative}}
+                     .dump(2)
+              << std::endl;
+  else
+    std::printf("wrote %s: %zu shapes in %d dimensions, %.1f %% of the positive spectrum\n", output.c_str(),
+                names.size(), dims, 100 * e.captured);
+  return kExitOk;
+}
+
+// "name,label" per line; a first line "name,label" is a header.
+std::vector<std::string> read_labels(const std::string& path, const std::vector<std::string>& names) {
+  std::ifstream in(path);
+  if (!in) fail(ErrorCode::kNotFound, "cannot read the labels file " + path);
+  std::map<std::string, std::string> label;
+  std::string line;
+  for (int n = 1; std::getline(in, line); ++n) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty() || (n == 1 && line == "name,label")) continue;
+    const size_t comma = line.rfind(',');
+    if (comma == std::string::npos || comma == 0 || comma + 1 == line.size())
+      invalid(path + ":" + std::to_string(n) + ": expected name,label");
+    label[line.substr(0, comma)] = line.substr(comma + 1);
+  }
+  std::vector<std::string> out;
+  for (const std::string& s : names) {
+    auto it = label.find(s);
+    if (it == label.end()) invalid(path + " has no label for " + s);
+    out.push_back(it->second);
+  }
+  return out;
+}
+
+int run_knn(const std::string& input, const std::string& labels_path, int k, int folds, bool json) {
+  std::vector<std::string> names;
+  Eigen::MatrixXd d;
+  distance::read_matrix(input, names, d);
+  const std::vector<std::string> labels = read_labels(labels_path, names);
+  const distance::KnnResult r = distance::knn_classify(d, labels, k, folds);
+  if (json) {
+    nlohmann::json shapes = nlohmann::json::array();
+    for (size_t i = 0; i < names.size(); ++i)
+      shapes.push_back({{"name", names[i]}, {"label", labels[i]}, {"predicted", r.predicted[i]}});
+    std::cout << nlohmann::json{{"k", r.k},
+                                {"validation", folds == 0 ? "leave-one-out" : std::to_string(folds) + "-fold"},
+                                {"correct", r.correct},
+                                {"total", r.total},
+                                {"accuracy", r.accuracy},
+                                {"shapes", shapes}}
+                     .dump(2)
+              << std::endl;
+  } else {
+    std::printf("%d-NN, %s: %d of %d correct, accuracy %.1f %%\n", k,
+                folds == 0 ? "leave-one-out" : (std::to_string(folds) + "-fold").c_str(), r.correct, r.total,
+                100 * r.accuracy);
+    for (size_t i = 0; i < names.size(); ++i)
+      if (r.predicted[i] != labels[i])
+        std::printf("  %s: %s, predicted %s\n", names[i].c_str(), labels[i].c_str(), r.predicted[i].c_str());
+  }
+  return kExitOk;
+}
+
+}  // namespace
+
+void add_distance(CLI::App& app, Action& action) {
+  {
+    auto o = std::make_shared<DistanceOptions>();
+    CLI::App* cmd = app.add_subcommand("distance", "shape distance between two surfaces");
+    cmd->add_option("a", o->a, "first mesh")->required();
+    cmd->add_option("b", o->b, "second mesh")->required();
+    o->flags.add_to(cmd);
+    cmd->add_option("--center-a", o->center_a, "interior marker of the first mesh (sent to 0)");
+    cmd->add_option("--boundary-a", o->boundary_a, "boundary marker of the first mesh (sent to 1)");
+    cmd->add_option("--center-b", o->center_b, "interior marker of the second mesh");
+    cmd->add_option("--boundary-b", o->boundary_b, "boundary marker of the second mesh");
+    cmd->add_flag("--both", o->both, "wasserstein: also print both directions");
+    cmd->add_flag("--json", o->json, "print one JSON object");
+    cmd->callback([o, &action] { action = [o] { return run_distance(*o); }; });
+  }
+  {
+    auto o = std::make_shared<MatrixCommand>();
+    CLI::App* cmd = app.add_subcommand("matrix", "distance matrix over a dataset (or one tile of it)");
+    cmd->add_option("files", o->files, "meshes")->required();
+    cmd->add_option("-o,--output", o->output, "matrix file (.csv, .npy, .json); with --tile, the tile file")
+        ->required();
+    o->flags.add_to(cmd);
+    cmd->add_option("--jobs", o->jobs, "worker threads (default: the number of cores)")->check(CLI::Range(1, 1024));
+    cmd->add_option("--tile", o->tile, "compute only tile I of K (0-based, e.g. 3/16) and write it for merge");
+    cmd->add_option("--cache", o->cache, "directory keeping each shape's maps by content hash");
+    cmd->add_option("--markers", o->markers, "file of lines file,center_vertex,boundary_vertex");
+    cmd->add_flag("--progress", o->progress, "report progress on stderr");
+    cmd->add_flag("--json", o->json, "print a JSON summary");
+    cmd->callback([o, &action] { action = [o] { return run_matrix(*o); }; });
+  }
+  {
+    auto files = std::make_shared<std::vector<std::string>>();
+    auto output = std::make_shared<std::string>();
+    CLI::App* cmd = app.add_subcommand("merge", "assemble matrix tiles into the matrix");
+    cmd->add_option("tiles", *files, "tile files written by matrix --tile")->required();
+    cmd->add_option("-o,--output", *output, "matrix file (.csv, .npy, .json)")->required();
+    cmd->callback([files, output, &action] { action = [files, output] { return run_merge(*files, *output); }; });
+  }
+  {
+    struct Mds {
+      std::string input, output;
+      int dims = 2;
+      bool json = false;
+    };
+    auto o = std::make_shared<Mds>();
+    CLI::App* cmd = app.add_subcommand("mds", "classical multidimensional scaling of a distance matrix");
+    cmd->add_option("matrix", o->input, "matrix (.csv or .json)")->required();
+    cmd->add_option("-o,--output", o->output, "coordinates CSV")->required();
+    cmd->add_option("--dims", o->dims, "dimensions (default 2)")->check(CLI::Range(1, 100));
+    cmd->add_flag("--json", o->json, "print a JSON summary");
+    cmd->callback([o, &action] { action = [o] { return run_mds(o->input, o->output, o->dims, o->json); }; });
+  }
+  {
+    struct Knn {
+      std::string input, labels;
+      int k = 1, folds = 0;
+      bool json = false;
+    };
+    auto o = std::make_shared<Knn>();
+    CLI::App* cmd = app.add_subcommand("knn", "k-nearest-neighbour classification from a distance matrix");
+    cmd->add_option("matrix", o->input, "matrix (.csv or .json)")->required();
+    cmd->add_option("--labels", o->labels, "CSV of name,label")->required();
+    cmd->add_option("--k", o->k, "neighbours (default 1)")->check(CLI::PositiveNumber);
+    cmd->add_option("--folds", o->folds, "k-fold cross-validation (default: leave-one-out)")->check(CLI::Range(2, 1 << 20));
+    cmd->add_flag("--json", o->json, "print one JSON object");
+    cmd->callback([o, &action] { action = [o] { return run_knn(o->input, o->labels, o->k, o->folds, o->json); }; });
+  }
+}
+
+}  // namespace brenier::tools
