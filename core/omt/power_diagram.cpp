@@ -17,7 +17,10 @@
 #include <cmath>
 #include <numbers>
 #include <string>
+#include <tuple>
+#include <vector>
 
+#include "common/check.hpp"
 #include "common/error.hpp"
 
 namespace brenier::omt {
@@ -237,31 +240,73 @@ void integrate_polygon(const LabelledPolygon& P, const Vec2& c, CellResult& out,
 
 // Cell polygon P against the piecewise-constant density: P ∩ T for every triangle T of the
 // buckets P's bounding box meets (each once: stamp), integrated with T's density.
-void integrate_density(const LabelledPolygon& P, const DensityMesh& dm, const Vec2& c, int cell_id,
-                       std::vector<int>& stamp, LabelledPolygon& Q, LabelledPolygon& scratch, CellResult& out) {
-  double xmin = P.p[0].x(), xmax = xmin, ymin = P.p[0].y(), ymax = ymin;
-  for (const Vec2& q : P.p) {
-    xmin = std::min(xmin, q.x()), xmax = std::max(xmax, q.x());
-    ymin = std::min(ymin, q.y()), ymax = std::max(ymax, q.y());
-  }
-  auto bx = [&](double x) { return std::clamp(static_cast<int>((x - dm.x0) / dm.cell), 0, dm.nx - 1); };
-  auto by = [&](double y) { return std::clamp(static_cast<int>((y - dm.y0) / dm.cell), 0, dm.ny - 1); };
-  for (int gy = by(ymin); gy <= by(ymax); ++gy)
-    for (int gx = bx(xmin); gx <= bx(xmax); ++gx) {
-      const int b = gy * dm.nx + gx;
-      for (int k = dm.bucket_start[b]; k < dm.bucket_start[b + 1]; ++k) {
-        const int f = dm.bucket_faces[k];
-        if (stamp[f] == cell_id || dm.density[f] == 0) continue;
-        stamp[f] = cell_id;
-        Q = P;
-        for (int e = 0; e < 3 && Q.p.size() >= 3; ++e) {
-          const Vec2 a = dm.vertices.row(dm.faces(f, e)), d = Vec2(dm.vertices.row(dm.faces(f, (e + 1) % 3))) - a;
-          const Vec2 n(-d.y(), d.x());  // inward normal of the counter-clockwise triangle
-          clip(Q, n, -a.dot(n), -1, scratch);
-        }
-        if (Q.p.size() >= 3) integrate_polygon(Q, c, out, dm.density[f]);
+// The triangle of dm holding point p, by a visibility walk from triangle t (crossing an edge
+// that has p on its outer side, the edges tried in a rotating order so that the walk cannot
+// circle forever in a non-Delaunay triangulation); -1 if the walk is too long.
+int walk_to(const DensityMesh& dm, int t, const Vec2& p) {
+  const int limit = 64 + 8 * static_cast<int>(std::sqrt(static_cast<double>(dm.faces.rows())));
+  for (int step = 0; step < limit; ++step) {
+    bool moved = false;
+    for (int r = 0; r < 3 && !moved; ++r) {
+      const int e = (r + step) % 3;
+      const Vec2 a = dm.vertices.row(dm.faces(t, e)), b = dm.vertices.row(dm.faces(t, (e + 1) % 3));
+      if (cross(b - a, p - a) < 0) {
+        const int g = dm.neighbour(t, e);
+        if (g < 0) return t;  // p beyond the hull (by round-off): its nearest triangle will do
+        t = g;
+        moved = true;
       }
     }
+    if (!moved) return t;
+  }
+  return -1;
+}
+
+// Cell P (site c) under the piecewise-constant density: P clipped by each triangle it
+// overlaps, integrated exactly with the triangle's density. The triangles are found by a
+// flood fill over triangle adjacency from one holding a point of P (P is convex and the
+// triangles tile the hull, so those meeting P's interior are edge-connected), which costs
+// what the overlaps cost however unevenly the triangles are sized (the conformal image of
+// a long protrusion packs thousands into one bucket of a uniform grid). `start` is where
+// the search begins and gets the triangle found.
+void integrate_density(const LabelledPolygon& P, const DensityMesh& dm, const Vec2& c, int cell_id,
+                       std::vector<int>& stamp, std::vector<int>& queue, int& start, LabelledPolygon& Q,
+                       LabelledPolygon& scratch, CellResult& out) {
+  Vec2 inside = Vec2::Zero();
+  for (const Vec2& q : P.p) inside += q;
+  inside /= static_cast<double>(P.p.size());
+  int t = start;
+  if (t < 0 || t >= dm.faces.rows()) {
+    const int gx = std::clamp(static_cast<int>((inside.x() - dm.x0) / dm.cell), 0, dm.nx - 1);
+    const int gy = std::clamp(static_cast<int>((inside.y() - dm.y0) / dm.cell), 0, dm.ny - 1);
+    const int b = gy * dm.nx + gx;
+    t = dm.bucket_start[b] < dm.bucket_start[b + 1] ? dm.bucket_faces[dm.bucket_start[b]] : 0;
+  }
+  t = walk_to(dm, t, inside);
+  if (t < 0) t = walk_to(dm, 0, inside);
+  BRENIER_CHECK(t >= 0, "no triangle of the density mesh found for cell " << cell_id);
+  start = t;
+  queue.clear();
+  queue.push_back(t);
+  stamp[t] = cell_id;
+  for (size_t k = 0; k < queue.size(); ++k) {
+    const int f = queue[k];
+    Q = P;
+    for (int e = 0; e < 3 && Q.p.size() >= 3; ++e) {
+      const Vec2 a = dm.vertices.row(dm.faces(f, e)), d = Vec2(dm.vertices.row(dm.faces(f, (e + 1) % 3))) - a;
+      const Vec2 n(-d.y(), d.x());  // inward normal of the counter-clockwise triangle
+      clip(Q, n, -a.dot(n), -1, scratch);
+    }
+    if (Q.p.size() < 3) continue;  // P misses f: do not spread from it
+    if (dm.density[f] > 0) integrate_polygon(Q, c, out, dm.density[f]);
+    for (int e = 0; e < 3; ++e) {
+      const int g = dm.neighbour(f, e);
+      if (g >= 0 && stamp[g] != cell_id) {
+        stamp[g] = cell_id;
+        queue.push_back(g);
+      }
+    }
+  }
 }
 
 constexpr double kSphereFar = 1e9;  // half side of the box the unbounded sphere cells are cut by
@@ -477,6 +522,27 @@ Domain Domain::piecewise_constant(const Points& V, const Eigen::Matrix<int, Eige
   for (auto [b, f] : entries) ++dm->bucket_start[b + 1];
   for (size_t b = 0; b + 1 < dm->bucket_start.size(); ++b) dm->bucket_start[b + 1] += dm->bucket_start[b];
   for (auto [b, f] : entries) dm->bucket_faces.push_back(f);
+  // Triangle adjacency across edges (an edge used twice the same way round means the
+  // triangles overlap: not a triangulation).
+  dm->neighbour.setConstant(nf, 3, -1);
+  std::vector<std::tuple<int, int, int>> half;  // (min vertex, max vertex, 3 f + k)
+  half.reserve(3 * static_cast<size_t>(nf));
+  for (int f = 0; f < nf; ++f)
+    for (int k = 0; k < 3; ++k) {
+      const int a = dm->faces(f, k), b = dm->faces(f, (k + 1) % 3);
+      half.emplace_back(std::min(a, b), std::max(a, b), 3 * f + k);
+    }
+  std::sort(half.begin(), half.end());
+  for (size_t k = 0; k + 1 < half.size(); ++k) {
+    auto [a0, b0, h0] = half[k];
+    auto [a1, b1, h1] = half[k + 1];
+    if (a0 != a1 || b0 != b1) continue;
+    if (k + 2 < half.size() && std::get<0>(half[k + 2]) == a0 && std::get<1>(half[k + 2]) == b0)
+      invalid("the density mesh's edge (" + std::to_string(a0) + ", " + std::to_string(b0) + ") has more than two triangles");
+    dm->neighbour(h0 / 3, h0 % 3) = h1 / 3;
+    dm->neighbour(h1 / 3, h1 % 3) = h0 / 3;
+    ++k;
+  }
   d.density = dm;
   return d;
 }
@@ -549,6 +615,7 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
   if (!h.allFinite()) invalid("heights must be finite");
   RT rt;
   if (!triangulate(sites, h, order_, fail_if_hidden, rt)) return std::nullopt;
+  if (domain.density && start_triangle_.size() != static_cast<size_t>(n)) start_triangle_.assign(n, -1);
   // Neighbour lists (CSR) from one pass over the triangulation's edges.
   std::vector<int> start(n + 1, 0), nbr;
   std::vector<char> present(n, 0);
@@ -595,7 +662,7 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
   {
     LabelledPolygon P, scratch, Q;
     DiskBoundary q;
-    std::vector<int> stamp(domain.density ? domain.density->faces.rows() : 0, -1);
+    std::vector<int> stamp(domain.density ? domain.density->faces.rows() : 0, -1), queue;
 #pragma omp for schedule(dynamic, 256)
     for (int i = 0; i < n; ++i) {
       if (!present[i]) continue;
@@ -613,7 +680,7 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
       if (domain.is_sphere)
         integrate_sphere(P, yi, cr);
       else if (domain.density)
-        integrate_density(P, *domain.density, yi, i, stamp, Q, scratch, cr);
+        integrate_density(P, *domain.density, yi, i, stamp, queue, start_triangle_[i], Q, scratch, cr);
       else if (domain.is_disk)
         integrate_disk(P, domain.radius, yi, q, cr);
       else

@@ -24,6 +24,8 @@ struct DensityMesh {
   double x0 = 0, y0 = 0, cell = 1;
   int nx = 1, ny = 1;
   std::vector<int> bucket_start, bucket_faces;
+  // neighbour(f, k): the triangle across edge (faces(f, k), faces(f, k + 1)), -1 on the hull.
+  Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor> neighbour;
 };
 
 struct Domain {
@@ -107,6 +109,11 @@ class PowerDiagrams {
   Domain domain_;
   Points sites_;
   std::vector<int> order_;  // Hilbert order of the sites
+  // Piecewise-constant densities: per site, a triangle its cell overlapped in the last
+  // diagram, where the next diagram's search for the cell's triangles starts. Each entry is
+  // only touched by the thread integrating that cell, and depends only on that cell's
+  // history, so diagrams stay identical for any number of threads.
+  mutable std::vector<int> start_triangle_;
 };
 
 }  // namespace brenier::omt

@@ -29,7 +29,7 @@ struct ShapeFlags {
   bool cut = false;
   std::string method = "wasserstein";
   double tolerance = 1e-8;
-  bool no_refine = false;
+  bool refine = false;
   int rings = 64, angles = 256;
   void add_to(CLI::App* cmd) {
     cmd->add_option("--method", method, "wasserstein (exact, Alg. 5) or omt-linear (Def. 2.24 as an embedding)")
@@ -39,8 +39,9 @@ struct ShapeFlags {
     cmd->add_flag("--cut-hole", cut, "open closed genus-0 meshes into disks by removing one vertex's star");
     cmd->add_option("--tolerance", tolerance, "max relative cell-mass error of each transport (default 1e-8)")
         ->check(CLI::PositiveNumber);
-    cmd->add_flag("--no-refine", no_refine,
-                  "wasserstein without markers: keep the quadrature's rotation step (no exact refinement)");
+    cmd->add_flag("--refine-rotation", refine,
+                  "wasserstein without markers: refine the rotation beyond the quadrature's step by exact "
+                  "evaluations (3-4 times the work)");
     cmd->add_option("--rings", rings, "quadrature rings of the OMT-map samples (default 64)")->check(CLI::Range(1, 4096));
     cmd->add_option("--angles", angles, "quadrature angles per ring (default 256)")->check(CLI::Range(4, 65536));
     cmd->add_flag("--merge-duplicates", clean.merge_duplicates, "merge vertices with identical coordinates");
@@ -62,7 +63,7 @@ struct ShapeFlags {
   distance::WassersteinOptions wasserstein() const {
     distance::WassersteinOptions w;
     w.tolerance = tolerance;
-    w.refine_rotation = !no_refine;
+    w.refine_rotation = refine;
     return w;
   }
 
