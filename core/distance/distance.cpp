@@ -78,42 +78,40 @@ std::string turn_words(const Shape& a, int angles) {
          std::to_string(angles);
 }
 
-// One direction of Alg. 5: the source is src's density, the sites dst's vertex images turned
-// by `angle`, with dst's masses. Returns W2^2 (eq. 3.31); `h` is the start (may be empty) and
-// gets the solution's heights.
-double one_way(const Shape& src, const Shape& dst, double angle, const WassersteinOptions& opt, Eigen::VectorXd& h,
-               PairResult& out) {
+}  // namespace
+
+TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, double tolerance,
+                             const omt::Progress& progress, Eigen::VectorXd& h) {
   const omt::Domain domain = omt::Domain::piecewise_constant(src.sites, src.tri, src.density);
   const double c = std::cos(angle), s = std::sin(angle);
   omt::Points sites(dst.sites.rows(), 2);
   sites.col(0) = c * dst.sites.col(0) - s * dst.sites.col(1);
   sites.col(1) = s * dst.sites.col(0) + c * dst.sites.col(1);
   omt::OmtOptions o;
-  o.tolerance = opt.tolerance;
-  o.progress = opt.progress;
+  o.tolerance = tolerance;
+  o.progress = progress;
   // dst's heights for the uniform disk: the cells start at the right areas, only the
   // density differs (measured, source three_peaks to mushroom's sites: 24 Newton iterations
   // where Alg. 2's Voronoi start took 52).
   o.initial_h = h.size() ? h : dst.h;
+  TransportCost out;
   omt::OmtResult r;
   try {
     r = omt::solve_omt(domain, sites, dst.mass, o);
   } catch (const Error& e) {
     if (e.code() != ErrorCode::kInvalidArgument && e.code() != ErrorCode::kNotConverged) throw;
-    // The shapes were each mapped and transported already: a failure here is the
-    // method's limit on this pair (cells too small for doubles), reported as such.
-    out.converged = false;
-    out.max_relative_error = std::numeric_limits<double>::infinity();
-    return std::numeric_limits<double>::quiet_NaN();
+    // Both shapes were mapped and transported already: a failure here is the method's
+    // limit on this pair (cells too small for doubles), reported as not converged.
+    out.failure = e.what();
+    return out;
   }
-  out.newton_iterations += r.iterations;
-  out.max_relative_error = std::max(out.max_relative_error, r.max_relative_error);
-  out.converged = out.converged && r.converged;
+  out.iterations = r.iterations;
+  out.max_relative_error = r.max_relative_error;
+  out.converged = r.converged;
+  out.w2_squared = r.cells.second_moment.sum();
   h = r.h;
-  return r.cells.second_moment.sum();
+  return out;
 }
-
-}  // namespace
 
 PairResult omt_linear(const Shape& a, const Shape& b) {
   require_comparable(a, b);
@@ -127,20 +125,29 @@ PairResult omt_linear(const Shape& a, const Shape& b) {
 
 PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions& opt) {
   require_comparable(a, b);
-  if (!(opt.tolerance > 0)) invalid("the transport tolerance must be positive");
+  if (a.transport_tolerance != b.transport_tolerance)
+    invalid("'" + a.name + "' and '" + b.name + "' were prepared with different transport tolerances");
   PairResult out;
   const int A = static_cast<int>(a.samples.cols());
   out.normalization = turn_words(a, A);
   Eigen::VectorXd h_ab, h_ba;
   struct Eval {
-    double angle, mean, forward, backward;
+    double angle, mean, forward, backward, raw_forward, raw_backward;
+  };
+  auto one_way = [&](const Shape& src, const Shape& dst, double angle, Eigen::VectorXd& h, double& raw) {
+    const TransportCost c = transport_cost(src, dst, angle, dst.transport_tolerance, opt.progress, h);
+    out.newton_iterations += c.iterations;
+    out.max_relative_error = std::max(out.max_relative_error, c.max_relative_error);
+    out.converged = out.converged && c.converged;
+    raw = std::sqrt(std::max(0.0, c.w2_squared));
+    return std::sqrt(std::max(0.0, c.w2_squared - (opt.debias ? dst.quantization : 0.0)));
   };
   // d(A, R_theta B) both ways: the second direction turns A back instead (same thing, by the
   // rotation invariance of both measures' disk).
   auto evaluate = [&](double angle) {
-    Eval e{angle, 0, 0, 0};
-    e.forward = std::sqrt(std::max(0.0, one_way(a, b, angle, opt, h_ab, out)));
-    e.backward = std::sqrt(std::max(0.0, one_way(b, a, -angle, opt, h_ba, out)));
+    Eval e{angle, 0, 0, 0, 0, 0};
+    e.forward = one_way(a, b, angle, h_ab, e.raw_forward);
+    e.backward = one_way(b, a, -angle, h_ba, e.raw_backward);
     e.mean = 0.5 * (e.forward + e.backward);
     return e;
   };
@@ -164,6 +171,9 @@ PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions&
   out.rotation = best.angle;
   out.forward = best.forward;
   out.backward = best.backward;
+  out.raw_forward = best.raw_forward;
+  out.raw_backward = best.raw_backward;
+  if (opt.debias) out.normalization += "; quantization bias removed";
   out.distance = out.converged ? best.mean : std::numeric_limits<double>::quiet_NaN();
   return out;
 }

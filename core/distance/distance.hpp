@@ -17,9 +17,13 @@ Method parse_method(const std::string& name);
 struct PairResult {
   double distance = 0;  // the reported distance
   /// Wasserstein only: W2 with the first surface's density as the source and the second's
-  /// vertices as the sites, and the other way round; `distance` is their mean.
+  /// vertices as the sites, and the other way round; `distance` is their mean. raw_* are
+  /// eq. 3.31 as it stands; forward/backward have the sites' own quantization removed
+  /// (WassersteinOptions::debias), and are the raw values when it is off.
   double forward = std::numeric_limits<double>::quiet_NaN();
   double backward = std::numeric_limits<double>::quiet_NaN();
+  double raw_forward = std::numeric_limits<double>::quiet_NaN();
+  double raw_backward = std::numeric_limits<double>::quiet_NaN();
   double rotation = 0;        // radians: the second surface's conformal image was turned by it
   std::string normalization;  // what fixed the Moebius freedom, said in words
   int newton_iterations = 0;  // of the transports solved for this pair
@@ -38,14 +42,34 @@ struct PairResult {
 PairResult omt_linear(const Shape& a, const Shape& b);
 
 struct WassersteinOptions {
-  double tolerance = 1e-8;  // each transport's max relative cell-mass error
   /// Without markers, refine the rotation of the second shape beyond the quadrature's
   /// 2 pi / angles steps (a parabola through three exact evaluations, then its vertex).
   /// Off by default: it costs three to four times the transports and moved mushroom vs
   /// three_peaks by 5e-5 of the distance.
   bool refine_rotation = false;
+  /// Remove the quantization bias of the semi-discrete cost. Sending the density mu_A to
+  /// B's vertex measure costs about W2^2(mu_A, mu_B) plus what quantizing mu_B onto its own
+  /// vertices costs (the cross term averages out over the small cells), q_B =
+  /// W2^2(mu_B, nu_B), computed once per shape (Shape::quantization). The debiased
+  /// distance sqrt(max(0, W2^2(mu_A, nu_B) - q_B)) estimates the distance between the two
+  /// surfaces' measures to O(h^2) instead of O(h), and d(A, A) is exactly 0 (the same
+  /// transport is solved on both sides of the difference).
+  bool debias = true;
   omt::Progress progress;
 };
+
+/// One direction of Alg. 5 (eq. 3.31): W2^2 from src's pushed-forward density to dst's
+/// vertex images turned by `angle`, with dst's vertex masses. `h` is the start (empty: dst's
+/// heights for the uniform disk) and gets the solution's heights.
+struct TransportCost {
+  double w2_squared = std::numeric_limits<double>::quiet_NaN();
+  int iterations = 0;
+  double max_relative_error = std::numeric_limits<double>::infinity();
+  bool converged = false;
+  std::string failure;  // why the solve stopped, when it threw
+};
+TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, double tolerance,
+                             const omt::Progress& progress, Eigen::VectorXd& h);
 
 /// The conformal Wasserstein distance (Alg. 5, eq. 3.31): the source is the first shape's
 /// pushed-forward area density (piecewise constant on its conformal image), the sites the

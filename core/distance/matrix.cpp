@@ -50,16 +50,17 @@ std::string matrix_fingerprint(const std::vector<ShapeInput>& shapes, const Matr
   for (const ShapeInput& x : shapes) {
     const ShapeOptions& o = x.options;
     if (o.quadrature.rings != s.quadrature.rings || o.quadrature.angles != s.quadrature.angles ||
-        o.conformal_tolerance != s.conformal_tolerance || o.omt_tolerance != s.omt_tolerance)
+        o.conformal_tolerance != s.conformal_tolerance || o.omt_tolerance != s.omt_tolerance ||
+        o.transport_tolerance != s.transport_tolerance)
       invalid("shape '" + x.name + "' has other quadrature or tolerance options than '" + shapes.front().name + "'");
   }
   char buf[256];
-  std::snprintf(buf, sizeof buf, "%s;quad=%dx%d;ktol=%.17g;otol=%.17g", method_name(opt.method), s.quadrature.rings,
-                s.quadrature.angles, s.conformal_tolerance, s.omt_tolerance);
+  std::snprintf(buf, sizeof buf, "%s;quad=%dx%d;ktol=%.17g;otol=%.17g;wtol=%.17g", method_name(opt.method),
+                s.quadrature.rings, s.quadrature.angles, s.conformal_tolerance, s.omt_tolerance, s.transport_tolerance);
   std::string out = buf;
   if (opt.method == Method::kWasserstein) {
-    std::snprintf(buf, sizeof buf, ";wtol=%.17g;refine=%d", opt.wasserstein.tolerance,
-                  opt.wasserstein.refine_rotation ? 1 : 0);
+    std::snprintf(buf, sizeof buf, ";refine=%d;debias=%d", opt.wasserstein.refine_rotation ? 1 : 0,
+                  opt.wasserstein.debias ? 1 : 0);
     out += buf;
   }
   return out;

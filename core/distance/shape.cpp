@@ -14,6 +14,7 @@
 
 #include "common/error.hpp"
 #include "common/hash.hpp"
+#include "distance/distance.hpp"
 #include "mesh/geometry.hpp"
 #include "omt/area_preserving.hpp"
 
@@ -35,8 +36,9 @@ double Quadrature::weight() const { return M_PI / (static_cast<double>(rings) * 
 
 std::string ShapeOptions::fingerprint() const {
   char buf[256];
-  std::snprintf(buf, sizeof buf, "disk;center=%d;boundary=%d;ktol=%.17g;otol=%.17g;quad=%dx%d",
+  std::snprintf(buf, sizeof buf, "disk;center=%d;boundary=%d;ktol=%.17g;otol=%.17g;wtol=%.17g;quad=%dx%d",
                 center_vertex.value_or(-1), boundary_vertex.value_or(-1), conformal_tolerance, omt_tolerance,
+                transport_tolerance,
                 quadrature.rings, quadrature.angles);
   return buf;
 }
@@ -100,6 +102,21 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
   s.omt_error = r.max_relative_error;
   const std::vector<int> cell =
       omt::PowerDiagrams(omt::Domain::unit_disk(), s.sites, false).locate(r.h, opt.quadrature.points());
+  // The quantization cost (WassersteinOptions::debias), solved exactly as a pair's
+  // direction with this shape on both sides is (same start, same tolerance).
+  Eigen::VectorXd start;
+  if (!(opt.transport_tolerance > 0) || !(opt.omt_tolerance > 0)) invalid("transport tolerances must be positive");
+  s.transport_tolerance = opt.transport_tolerance;
+  const TransportCost q = transport_cost(s, s, 0.0, opt.transport_tolerance, {}, start);
+  if (!q.converged)
+  {
+    char buf[160];
+    std::snprintf(buf, sizeof buf, " (max relative cell-mass error %.2e after %d Newton iterations)",
+                  q.max_relative_error, q.iterations);
+    fail(ErrorCode::kNotConverged, name + ": the transport from its density to its own vertices did not converge" +
+                                       (q.failure.empty() ? std::string(buf) : " (" + q.failure + ")"));
+  }
+  s.quantization = q.w2_squared;
   const int R = opt.quadrature.rings, A = opt.quadrature.angles;
   s.samples.resize(R, A);
   s.spectrum.resize(R, A);
@@ -121,7 +138,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
 
 namespace {
 
-constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '1'};
+constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '3'};
 
 struct Writer {
   std::ostream& os;
@@ -188,6 +205,8 @@ void save_shape(const Shape& s, const std::string& path) {
     w.pod(s.curvature_error);
     w.pod(s.omt_iterations);
     w.pod(s.omt_error);
+    w.pod(s.quantization);
+    w.pod(s.transport_tolerance);
     w.mat(s.sites);
     w.mat(s.mass);
     w.mat(s.tri);
@@ -221,6 +240,8 @@ bool load_shape(const std::string& path, Shape& out) {
   r.pod(s.curvature_error);
   r.pod(s.omt_iterations);
   r.pod(s.omt_error);
+  r.pod(s.quantization);
+  r.pod(s.transport_tolerance);
   r.mat(s.sites);
   r.mat(s.mass);
   r.mat(s.tri);

@@ -33,6 +33,11 @@ struct ShapeOptions {
   std::optional<int> center_vertex, boundary_vertex;
   double conformal_tolerance = 1e-7;  // max |K - Kbar|
   double omt_tolerance = 1e-8;        // the embedding's transport (max relative cell-mass error)
+  /// The Wasserstein transports' tolerance (the shape's quantization cost and every pair's,
+  /// which must agree for the bias to cancel). Looser than the maps' 1e-8: a cell-mass error
+  /// e moves W2^2 by about e times a cell's second moment, and piecewise-constant densities
+  /// of strongly distorted conformal images put the round-off floor of some cells near 5e-8.
+  double transport_tolerance = 1e-6;
   Quadrature quadrature;
   /// A string of every option that changes the result (part of the cache key).
   std::string fingerprint() const;
@@ -56,6 +61,10 @@ struct Shape {
   Eigen::VectorXd h;
   Eigen::MatrixXcd samples;   // rings x angles
   Eigen::MatrixXcd spectrum;  // each ring's discrete Fourier transform over the angles
+  /// W2^2 from the density to the shape's own vertex measure (its quantization cost, the
+  /// bias the Wasserstein distance removes), by the same transport as a pair's.
+  double quantization = 0;
+  double transport_tolerance = 1e-6;  // of the quantization and of every pair with this shape
   int conformal_iterations = 0;
   double curvature_error = 0;
   int omt_iterations = 0;

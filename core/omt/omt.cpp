@@ -114,6 +114,33 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
     }
   }
   if (!r.warm_started) r.cells = diagram(r.h);
+  if (!r.warm_started && r.cells.empty_cells > 0) {
+    // Sites outside the domain (a conformal image's vertices on the unit circle, beyond the
+    // chords of another image's hull) can have empty Voronoi cells. Pull the sites toward
+    // the domain's centre c, z_i = c + s (y_i - c), halving s until every z_i is inside: the
+    // Voronoi diagram of the z_i, which is the power diagram of the y_i at
+    // h_i = -|z_i|^2 / (2 s), gives every site a cell containing z_i.
+    Eigen::Vector2d c = Eigen::Vector2d::Zero();
+    if (!domain.is_disk && !domain.is_sphere) c = domain.polygon.colwise().mean().transpose();
+    auto all_inside = [&](double s) {
+      for (int i = 0; i < n; ++i) {
+        const Eigen::Vector2d z = c + s * (sites.row(i).transpose() - c);
+        if (!domain.contains(z.x(), z.y(), -1e-12)) return false;
+      }
+      return true;
+    };
+    double s = 1;
+    for (int k = 0; k < 60 && !all_inside(s); ++k) s *= 0.5;
+    if (s < 1) {
+      Eigen::VectorXd h(n);
+      for (int i = 0; i < n; ++i) h[i] = -(c + s * (sites.row(i).transpose() - c)).squaredNorm() / (2 * s);
+      PowerCells cells = diagram(h);
+      if (cells.empty_cells < r.cells.empty_cells) {
+        r.h = std::move(h);
+        r.cells = std::move(cells);
+      }
+    }
+  }
   r.max_relative_error = max_relative(r.cells.mass, nu);
   if (n == 1) {
     r.converged = true;

@@ -10,45 +10,12 @@ import os
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from clitest import Checks  # noqa: E402
+from clitest import Checks, read_obj, read_off  # noqa: E402
 
 exe, data, work = sys.argv[1:4]
 T = Checks(exe)
 os.makedirs(work, exist_ok=True)
 check, run = T.check, T.run
-
-
-def read_off(path):
-    toks = [l.split("#")[0] for l in open(path)]
-    toks = " ".join(toks).split()
-    assert toks[0] == "OFF"
-    nv, nf = int(toks[1]), int(toks[2])
-    i = 4
-    verts = []
-    for _ in range(nv):
-        verts.append(tuple(float(x) for x in toks[i:i + 3]))
-        i += 3
-    faces = []
-    for _ in range(nf):
-        k = int(toks[i])
-        faces.append(tuple(int(x) for x in toks[i + 1:i + 1 + k]))
-        i += 1 + k
-    return verts, faces
-
-
-def read_obj(path):
-    v, vt, f = [], [], []
-    for line in open(path):
-        p = line.split()
-        if not p:
-            continue
-        if p[0] == "v":
-            v.append(tuple(map(float, p[1:4])))
-        elif p[0] == "vt":
-            vt.append(tuple(map(float, p[1:3])))
-        elif p[0] == "f":
-            f.append(tuple(p[1:]))
-    return v, vt, f
 
 
 # Disk: lion-head.

@@ -28,8 +28,8 @@ struct ShapeFlags {
   mesh::CleanOptions clean;
   bool cut = false;
   std::string method = "wasserstein";
-  double tolerance = 1e-8;
-  bool refine = false;
+  double tolerance = 1e-6;
+  bool refine = false, raw = false;
   int rings = 64, angles = 256;
   void add_to(CLI::App* cmd) {
     cmd->add_option("--method", method, "wasserstein (exact, Alg. 5) or omt-linear (Def. 2.24 as an embedding)")
@@ -37,11 +37,13 @@ struct ShapeFlags {
     cmd->add_option("--domain", domain, "disk (closed genus-0 surfaces with --cut-hole)")
         ->check(CLI::IsMember({"disk", "sphere"}));
     cmd->add_flag("--cut-hole", cut, "open closed genus-0 meshes into disks by removing one vertex's star");
-    cmd->add_option("--tolerance", tolerance, "max relative cell-mass error of each transport (default 1e-8)")
+    cmd->add_option("--tolerance", tolerance, "wasserstein: max relative cell-mass error of each transport (default 1e-6)")
         ->check(CLI::PositiveNumber);
     cmd->add_flag("--refine-rotation", refine,
                   "wasserstein without markers: refine the rotation beyond the quadrature's step by exact "
                   "evaluations (3-4 times the work)");
+    cmd->add_flag("--raw", raw,
+                  "wasserstein: eq. 3.31 as it stands, without removing the sites' quantization cost");
     cmd->add_option("--rings", rings, "quadrature rings of the OMT-map samples (default 64)")->check(CLI::Range(1, 4096));
     cmd->add_option("--angles", angles, "quadrature angles per ring (default 256)")->check(CLI::Range(4, 65536));
     cmd->add_flag("--merge-duplicates", clean.merge_duplicates, "merge vertices with identical coordinates");
@@ -55,15 +57,15 @@ struct ShapeFlags {
       invalid("distances on the sphere domain are not implemented yet; map closed genus-0 surfaces onto the disk "
               "with --domain disk --cut-hole");
     distance::ShapeOptions o;
-    o.omt_tolerance = tolerance;
+    o.transport_tolerance = tolerance;
     o.quadrature.rings = rings;
     o.quadrature.angles = angles;
     return o;
   }
   distance::WassersteinOptions wasserstein() const {
     distance::WassersteinOptions w;
-    w.tolerance = tolerance;
     w.refine_rotation = refine;
+    w.debias = !raw;
     return w;
   }
 
@@ -123,6 +125,8 @@ nlohmann::json pair_json(const distance::PairResult& r, const std::string& metho
   if (method == "wasserstein") {
     j["forward"] = r.forward;
     j["backward"] = r.backward;
+    j["raw_forward"] = r.raw_forward;
+    j["raw_backward"] = r.raw_backward;
     j["newton_iterations"] = r.newton_iterations;
     j["max_relative_area_error"] = r.max_relative_error;
   }
@@ -143,7 +147,7 @@ int run_distance(const DistanceOptions& o) {
   const distance::Method method = distance::parse_method(o.flags.method);
   std::vector<distance::ShapeInput> in = {o.flags.load(o.a, o.center_a, o.boundary_a),
                                           o.flags.load(o.b, o.center_b, o.boundary_b)};
-  unique_names(in, {o.a, o.b});
+  if (in[0].name == in[1].name) in[1].name += " (b)";
   std::vector<distance::Shape> s(2);
   parallel_for(2, 2, [&](int k) { s[k] = distance::prepare_shape(in[k].mesh, in[k].name, in[k].options); });
   const double t_shapes = seconds_since(t0);
@@ -164,6 +168,7 @@ int run_distance(const DistanceOptions& o) {
                              {"faces", x.faces},
                              {"key", x.key},
                              {"conformal_newton_iterations", x.conformal_iterations},
+                             {"quantization_w2", std::sqrt(x.quantization)},
                              {"omt_newton_iterations", x.omt_iterations}});
     std::cout << j.dump(2) << std::endl;
   } else {
