@@ -1,0 +1,285 @@
+// Shape distances (core/distance): analytic radial cases, metric properties, the rotation
+// search against brute force, cache files, tiles, MDS and k-NN.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <random>
+#include <set>
+
+#include "common/error.hpp"
+#include "distance/analysis.hpp"
+#include "distance/distance.hpp"
+#include "distance/matrix.hpp"
+#include "distance/shape.hpp"
+#include "mesh/shapes.hpp"
+#include "omt/omt.hpp"
+
+using namespace brenier;
+using distance::Shape;
+using distance::ShapeOptions;
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+
+// Simpson's rule on [0, 1].
+template <class F>
+double integrate01(F f, int n = 2000) {
+  double s = f(0.0) + f(1.0);
+  for (int k = 1; k < n; ++k) s += (k % 2 ? 4 : 2) * f(static_cast<double>(k) / n);
+  return s / (3.0 * n);
+}
+
+// A disk mesh lifted by a bump off the centre: not radially symmetric.
+mesh::TriMesh bumped_disk(int rings, double x0, double y0, double height) {
+  mesh::TriMesh m = mesh::make_disk(rings);
+  for (int v = 0; v < m.num_vertices(); ++v) {
+    const double dx = m.V(v, 0) - x0, dy = m.V(v, 1) - y0;
+    m.V(v, 2) = height * std::exp(-(dx * dx + dy * dy) / 0.08);
+  }
+  return m;
+}
+
+ShapeOptions small_quadrature() {
+  ShapeOptions o;
+  o.quadrature.rings = 24;
+  o.quadrature.angles = 64;
+  return o;
+}
+
+}  // namespace
+
+// The planar disk against the hemisphere: both radially symmetric, so every distance has a
+// closed form. The hemisphere's conformal image is its stereographic projection, whose
+// area (scaled to pi) has density rho(s) = 2 / (1 + s^2)^2 on the unit disk; the planar disk's
+// is uniform. Matching cumulative masses, pi r^2 = 2 pi (1 - 1 / (1 + s^2)), gives the radial
+// optimal map s -> r(s) = s sqrt(2 / (1 + s^2)) from rho to uniform, hence
+//   W2^2 = int_0^1 rho(s) (s - r(s))^2 2 pi s ds,
+// and the OMT map of Def. 2.24 from the uniform disk onto rho is its inverse
+// r -> s(r) = r / sqrt(2 - r^2), hence the OMT-map distance^2 = int_0^1 (r - s(r))^2 2 pi r dr
+// (the planar disk's own map is the identity).
+TEST(Distance, DiskAgainstHemisphereMatchesTheRadialClosedForms) {
+  const double w2 = std::sqrt(integrate01([](double s) {
+    const double r = s * std::sqrt(2 / (1 + s * s));
+    return 2 / ((1 + s * s) * (1 + s * s)) * (s - r) * (s - r) * 2 * kPi * s;
+  }));
+  const double lin = std::sqrt(integrate01([](double r) {
+    const double s = r / std::sqrt(2 - r * r);
+    return (r - s) * (r - s) * 2 * kPi * r;
+  }));
+  ShapeOptions opt = small_quadrature();
+  opt.quadrature.rings = 64;
+  opt.quadrature.angles = 128;
+  const Shape disk = distance::prepare_shape(mesh::make_disk(24), "disk", opt);
+  const Shape cap = distance::prepare_shape(mesh::make_hemisphere(24), "hemisphere", opt);
+  const distance::PairResult w = distance::wasserstein(disk, cap);
+  ASSERT_TRUE(w.converged);
+  EXPECT_NEAR(w.distance, w2, 0.03 * w2) << "closed form " << w2;
+  EXPECT_NEAR(w.forward, w.backward, 0.03 * w2);
+  const distance::PairResult l = distance::omt_linear(disk, cap);
+  EXPECT_NEAR(l.distance, lin, 0.05 * lin) << "closed form " << lin;
+  // The debiased estimate is closer to the closed form than eq. 3.31 as it stands.
+  EXPECT_LT(std::abs(w.distance - w2), std::abs(0.5 * (w.raw_forward + w.raw_backward) - w2));
+}
+
+TEST(Distance, AShapeIsAtDistanceZeroFromItselfAndFromARigidScaledCopy) {
+  const mesh::TriMesh a = bumped_disk(12, 0.3, 0.1, 0.5);
+  mesh::TriMesh b = a;
+  const double c = std::cos(0.4), s = std::sin(0.4);
+  for (int v = 0; v < b.num_vertices(); ++v) {
+    const Eigen::Vector3d p = b.V.row(v);
+    b.V.row(v) << 3 * (c * p.x() - s * p.z()) + 1, 3 * p.y() - 2, 3 * (s * p.x() + c * p.z());
+  }
+  const Shape A = distance::prepare_shape(a, "a", small_quadrature());
+  const Shape B = distance::prepare_shape(b, "b", small_quadrature());
+  EXPECT_EQ(distance::wasserstein(A, A).distance, 0.0);
+  EXPECT_EQ(distance::omt_linear(A, A).distance, 0.0);
+  EXPECT_LT(distance::wasserstein(A, B).distance, 1e-6);
+  EXPECT_LT(distance::omt_linear(A, B).distance, 1e-6);
+  EXPECT_NE(A.key, B.key);
+}
+
+TEST(Distance, IsSymmetricAndObeysTheTriangleInequality) {
+  std::vector<Shape> s;
+  const double bumps[4][3] = {{0.3, 0.1, 0.5}, {-0.2, 0.3, 0.8}, {0.0, -0.4, 0.3}, {0.1, 0.1, -0.6}};
+  for (int k = 0; k < 4; ++k)
+    s.push_back(distance::prepare_shape(bumped_disk(10, bumps[k][0], bumps[k][1], bumps[k][2]), "s" + std::to_string(k),
+                                        small_quadrature()));
+  double w[4][4], l[4][4];
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) {
+      w[i][j] = distance::wasserstein(s[i], s[j]).distance;
+      l[i][j] = distance::omt_linear(s[i], s[j]).distance;
+    }
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) {
+      EXPECT_NEAR(w[i][j], w[j][i], 1e-9);
+      EXPECT_NEAR(l[i][j], l[j][i], 1e-12);
+      if (i != j) {
+        EXPECT_GT(w[i][j], 1e-3);
+      }
+      for (int k = 0; k < 4; ++k) {
+        EXPECT_LE(l[i][k], l[i][j] + l[j][k] + 1e-12);
+        EXPECT_LE(w[i][k], w[i][j] + w[j][k] + 1e-3);
+      }
+    }
+}
+
+// The FFT scoring of all turns agrees with trying each turn: the minimum over the cyclic
+// shifts s of sum_{r,k} |a_{r,k} - e^{2 pi i s / A} b_{r,k-s}|^2.
+TEST(Distance, TheRotationSearchFindsTheBruteForceMinimum) {
+  const Shape a = distance::prepare_shape(bumped_disk(10, 0.3, 0.1, 0.7), "a", small_quadrature());
+  const Shape b = distance::prepare_shape(bumped_disk(10, -0.25, 0.2, 0.6), "b", small_quadrature());
+  const int R = static_cast<int>(a.samples.rows()), A = static_cast<int>(a.samples.cols());
+  double best = INFINITY;
+  int best_shift = -1;
+  for (int s = 0; s < A; ++s) {
+    const std::complex<double> turn = std::polar(1.0, 2 * kPi * s / A);
+    double sum = 0;
+    for (int r = 0; r < R; ++r)
+      for (int k = 0; k < A; ++k) sum += std::norm(a.samples(r, k) - turn * b.samples(r, ((k - s) % A + A) % A));
+    sum *= kPi / (R * A);
+    if (sum < best) best = sum, best_shift = s;
+  }
+  const distance::PairResult r = distance::omt_linear(a, b);
+  EXPECT_NEAR(r.distance, std::sqrt(best), 1e-12);
+  EXPECT_NEAR(r.rotation, 2 * kPi * best_shift / A, 1e-12);
+  EXPECT_GT(best_shift, 0) << "a test where the turn matters";
+}
+
+TEST(Distance, MarkersFixTheTurnAndMustBeGivenForBoth) {
+  ShapeOptions marked = small_quadrature();
+  const mesh::TriMesh m = bumped_disk(8, 0.3, 0.1, 0.5);
+  marked.center_vertex = 0;
+  marked.boundary_vertex = m.num_vertices() - 1;  // the outer ring is the boundary
+  const Shape a = distance::prepare_shape(m, "a", marked);
+  const Shape b = distance::prepare_shape(bumped_disk(8, -0.2, 0.1, 0.5), "b", marked);
+  const Shape c = distance::prepare_shape(m, "c", small_quadrature());
+  EXPECT_TRUE(a.markers);
+  const distance::PairResult r = distance::wasserstein(a, b);
+  EXPECT_EQ(r.rotation, 0.0);
+  EXPECT_NE(r.normalization.find("markers"), std::string::npos);
+  EXPECT_THROW(distance::omt_linear(a, c), Error);
+  ShapeOptions half = small_quadrature();
+  half.center_vertex = 0;
+  EXPECT_THROW(distance::prepare_shape(m, "d", half), Error);
+}
+
+TEST(Distance, ClosedSurfacesAreRefusedOnTheDisk) {
+  EXPECT_THROW(distance::prepare_shape(mesh::make_icosphere(2), "ball", small_quadrature()), Error);
+}
+
+TEST(Distance, CacheFilesReadBackExactlyAndRejectDamage) {
+  const Shape a = distance::prepare_shape(bumped_disk(8, 0.3, 0.1, 0.5), "a", small_quadrature());
+  const std::string dir = ::testing::TempDir() + "brenier-cache-test";
+  std::filesystem::create_directories(dir);
+  const std::string path = dir + "/" + a.key + ".shape";
+  distance::save_shape(a, path);
+  Shape b;
+  ASSERT_TRUE(distance::load_shape(path, b));
+  EXPECT_EQ(b.key, a.key);
+  EXPECT_EQ(b.quantization, a.quantization);
+  EXPECT_TRUE(b.sites == a.sites && b.mass == a.mass && b.tri == a.tri && b.density == a.density && b.h == a.h &&
+              b.samples == a.samples && b.spectrum == a.spectrum);
+  // Truncated, or not a cache file at all: not loaded (the shape is then computed again).
+  const auto size = std::filesystem::file_size(path);
+  std::filesystem::resize_file(path, size - 5);
+  EXPECT_FALSE(distance::load_shape(path, b));
+  std::ofstream(path) << "OFF\n";
+  EXPECT_FALSE(distance::load_shape(path, b));
+  EXPECT_FALSE(distance::load_shape(dir + "/missing.shape", b));
+  std::filesystem::remove_all(dir);
+}
+
+TEST(Matrix, TilesCoverEveryPairOnceInOrder) {
+  for (int n = 2; n <= 13; ++n)
+    for (int k = 1; k <= 7; ++k) {
+      std::vector<std::pair<int, int>> all;
+      for (int t = 0; t < k; ++t) {
+        const auto part = distance::tile_pairs(n, {t, k});
+        all.insert(all.end(), part.begin(), part.end());
+      }
+      ASSERT_EQ(all.size(), static_cast<size_t>(n * (n - 1) / 2)) << n << " " << k;
+      size_t at = 0;
+      for (int i = 0; i < n; ++i)
+        for (int j = i + 1; j < n; ++j, ++at) EXPECT_EQ(all[at], std::make_pair(i, j));
+    }
+  EXPECT_EQ(distance::parse_tile("2/5").index, 2);
+  for (const char* bad : {"5/5", "-1/3", "1/0", "a/b", "1/2/3", "1"}) EXPECT_THROW(distance::parse_tile(bad), Error) << bad;
+}
+
+TEST(Matrix, TilesFromAnyThreadCountAssembleToTheSameMatrix) {
+  std::vector<distance::ShapeInput> in;
+  const double bumps[4][3] = {{0.3, 0.1, 0.5}, {-0.2, 0.3, 0.8}, {0.0, -0.4, 0.3}, {0.1, 0.1, -0.6}};
+  for (int k = 0; k < 4; ++k)
+    in.push_back({"s" + std::to_string(k), bumped_disk(8, bumps[k][0], bumps[k][1], bumps[k][2]), small_quadrature()});
+  distance::MatrixOptions opt;
+  opt.method = distance::Method::kWasserstein;
+  opt.jobs = 2;
+  const Eigen::MatrixXd whole = distance::assemble({distance::compute_tile(in, opt)});
+  std::vector<distance::MatrixTile> tiles;
+  opt.jobs = 1;
+  for (int t = 2; t >= 0; --t) {
+    opt.tile = {t, 3};
+    tiles.push_back(distance::compute_tile(in, opt));
+  }
+  const Eigen::MatrixXd merged = distance::assemble(tiles);
+  EXPECT_TRUE(merged == whole) << "bit-identical";
+  EXPECT_TRUE(whole == whole.transpose());
+  EXPECT_TRUE((whole.diagonal().array() == 0).all());
+  tiles.pop_back();
+  EXPECT_THROW(distance::assemble(tiles), Error);
+}
+
+TEST(Analysis, MdsRecoversPlanarPointsUpToARigidMotion) {
+  std::mt19937 rng(3);
+  std::normal_distribution<double> N(0, 1);
+  const int n = 9;
+  Eigen::MatrixXd X(n, 2);
+  for (int i = 0; i < n; ++i) X.row(i) << N(rng), N(rng);
+  Eigen::MatrixXd D(n, n);
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) D(i, j) = (X.row(i) - X.row(j)).norm();
+  const distance::Embedding e = distance::classical_mds(D, 2);
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) EXPECT_NEAR((e.coordinates.row(i) - e.coordinates.row(j)).norm(), D(i, j), 1e-9);
+  EXPECT_NEAR(e.captured, 1.0, 1e-12);
+  EXPECT_LT(e.negative, 1e-12);
+  EXPECT_THROW(distance::classical_mds(D, 0), Error);
+}
+
+TEST(Analysis, KnnVotesByTheNearestAndCountsFolds) {
+  // Points on a line: 0, 1, 2 labelled a; 10, 11, 12 labelled b; 6.2 labelled a, nearer 10
+  // (b, 3.8 away) than 2 (a, 4.2 away).
+  const std::vector<double> x = {0, 1, 2, 10, 11, 12, 6.2};
+  const std::vector<std::string> labels = {"a", "a", "a", "b", "b", "b", "a"};
+  const int n = static_cast<int>(x.size());
+  Eigen::MatrixXd D(n, n);
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) D(i, j) = std::abs(x[i] - x[j]);
+  const distance::KnnResult r = distance::knn_classify(D, labels, 1, 0);
+  EXPECT_EQ(r.correct, 6);
+  EXPECT_EQ(r.predicted[6], "b");
+  // k = 2: one vote each; the tie goes to the label of the nearest.
+  EXPECT_EQ(distance::knn_classify(D, labels, 2, 0).predicted[6], "b");
+  EXPECT_EQ(distance::knn_classify(D, labels, 3, 0).predicted[0], "a");
+  const distance::KnnResult f = distance::knn_classify(D, labels, 1, 2);
+  EXPECT_EQ(f.total, n);
+  EXPECT_THROW(distance::knn_classify(D, labels, 0, 0), Error);
+  EXPECT_THROW(distance::knn_classify(D, labels, 1, 1), Error);
+}
+
+// Sites outside a convex domain whose Voronoi cells miss it: the solver starts from the
+// sites pulled toward the domain instead of refusing them.
+TEST(Omt, SitesOutsideTheDomainStartFromAPulledInDiagram) {
+  omt::Points sites(5, 2);
+  sites << 0, 0, 1.5, 0, 3, 0, 0, 1.5, 0, 3;  // (3, 0) and (0, 3) hide behind the others
+  const Eigen::VectorXd nu = Eigen::VectorXd::Constant(5, 1.0);
+  const omt::OmtResult r = omt::solve_omt(omt::Domain::square(1.0), sites, nu);
+  ASSERT_TRUE(r.converged);
+  for (int i = 0; i < 5; ++i) EXPECT_NEAR(r.cells.mass[i], 4.0 / 5, 1e-7);
+}
