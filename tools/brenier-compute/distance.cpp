@@ -28,7 +28,7 @@ struct ShapeFlags {
   mesh::CleanOptions clean;
   bool cut = false;
   std::string method = "wasserstein";
-  double tolerance = 1e-6;
+  double tolerance = 1e-3;
   bool refine = false, raw = false;
   int rings = 64, angles = 256;
   void add_to(CLI::App* cmd) {
@@ -37,7 +37,8 @@ struct ShapeFlags {
     cmd->add_option("--domain", domain, "disk (closed genus-0 surfaces with --cut-hole)")
         ->check(CLI::IsMember({"disk", "sphere"}));
     cmd->add_flag("--cut-hole", cut, "open closed genus-0 meshes into disks by removing one vertex's star");
-    cmd->add_option("--tolerance", tolerance, "wasserstein: max relative cell-mass error of each transport (default 1e-6)")
+    cmd->add_option("--tolerance", tolerance, "wasserstein: max relative cell-mass error of each transport (default 1e-3; the distance is read from "
+                    "the dual, accurate to about the square of it)")
         ->check(CLI::PositiveNumber);
     cmd->add_flag("--refine-rotation", refine,
                   "wasserstein without markers: refine the rotation beyond the quadrature's step by exact "
