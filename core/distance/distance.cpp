@@ -24,6 +24,13 @@ namespace {
 using cd = std::complex<double>;
 
 void require_comparable(const Shape& a, const Shape& b) {
+  if (a.sphere != b.sphere)
+    invalid("'" + a.name + "' and '" + b.name + "' were mapped onto different domains (disk and sphere)");
+  if (a.sphere) {
+    if (a.rings != b.rings || a.angles != b.angles)
+      invalid("'" + a.name + "' and '" + b.name + "' were sampled on different quadratures");
+    return;
+  }
   if (a.markers != b.markers)
     invalid("'" + a.name + "' and '" + b.name + "': give markers for both shapes or for neither");
   if (a.samples.rows() != b.samples.rows() || a.samples.cols() != b.samples.cols())
@@ -119,8 +126,61 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, d
   return out;
 }
 
+
+std::vector<int> sphere_half_turn(int axis, const Quadrature& quad) {
+  const int R = quad.rings, A = quad.angles;
+  if (axis < 0 || axis > 3 || A % 2 != 0) invalid("sphere_half_turn: axis 0..3 and an even number of angles");
+  std::vector<int> to(static_cast<size_t>(R) * A);
+  for (int k = 0; k < R; ++k)
+    for (int j = 0; j < A; ++j) {
+      // z -> -z flips the band; the longitude phi goes to -phi (first axis), pi - phi
+      // (second) or phi + pi (third).
+      int k2 = k, j2 = j;
+      if (axis == 1) k2 = R - 1 - k, j2 = A - 1 - j;
+      if (axis == 2) k2 = R - 1 - k, j2 = ((A / 2 - 1 - j) % A + A) % A;
+      if (axis == 3) j2 = (j + A / 2) % A;
+      to[static_cast<size_t>(k) * A + j] = k2 * A + j2;
+    }
+  return to;
+}
+
+namespace {
+
+// On the sphere: the frames of both shapes are their principal frames, known up to the
+// half-turns g about the frame's axes (sign choices of a right-handed frame). Turning B by g
+// makes its map g T_B g (g is its own inverse); on the band quadrature, g x_q is another
+// point x_{pi_g(q)}, so each candidate is a permutation of B's samples.
+PairResult omt_linear_sphere(const Shape& a, const Shape& b, int rings, int angles) {
+  PairResult out;
+  out.distance = std::numeric_limits<double>::infinity();
+  const Eigen::Vector3d flips[4] = {{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1, 1}};
+  const char* names[4] = {"identity", "half-turn about the first axis", "half-turn about the second axis",
+                          "half-turn about the third axis"};
+  Quadrature quad;
+  quad.rings = rings;
+  quad.angles = angles;
+  for (int g = 0; g < 4; ++g) {
+    const std::vector<int> to = sphere_half_turn(g, quad);
+    double sum = 0;
+    for (int q = 0; q < rings * angles; ++q) {
+      const Eigen::Vector3d ta = a.sphere_samples.row(q).transpose(), tb = b.sphere_samples.row(to[q]).transpose();
+      sum += (ta - flips[g].cwiseProduct(tb)).squaredNorm();
+    }
+    const double d = std::sqrt(sum * 4 * M_PI / (static_cast<double>(rings) * angles));
+    if (d < out.distance) {
+      out.distance = d;
+      out.normalization = std::string("Moebius centring, principal frames, ") + names[g] + " of the second shape";
+    }
+  }
+  out.normalization += " (the best of the frame's four sign choices)";
+  return out;
+}
+
+}  // namespace
+
 PairResult omt_linear(const Shape& a, const Shape& b) {
   require_comparable(a, b);
+  if (a.sphere) return omt_linear_sphere(a, b, a.rings, a.angles);
   const Turn t = best_turn(a, b);
   PairResult out;
   out.distance = std::sqrt(std::max(0.0, squared_distance(a, b, t)));
@@ -131,6 +191,9 @@ PairResult omt_linear(const Shape& a, const Shape& b) {
 
 PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions& opt) {
   require_comparable(a, b);
+  if (a.sphere)
+    invalid("the exact Wasserstein distance on the sphere is not implemented yet (it needs power diagrams of the "
+            "chordal cost on the sphere); use --method omt-linear, or --domain disk --cut-hole");
   if (a.transport_tolerance != b.transport_tolerance)
     invalid("'" + a.name + "' and '" + b.name + "' were prepared with different transport tolerances");
   PairResult out;

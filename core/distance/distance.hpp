@@ -3,6 +3,7 @@
 
 #include <limits>
 #include <string>
+#include <vector>
 
 #include "distance/shape.hpp"
 #include "omt/omt.hpp"
@@ -39,7 +40,15 @@ struct PairResult {
 /// once both are centred): on the quadrature a turn is a cyclic shift of each ring, so all
 /// turns are scored at once by one cross-correlation (FFT) per pair. Over that finite group
 /// of isometries the minimum is a metric on the shapes (symmetric, triangle inequality).
+/// On the sphere (Shape::sphere) the same with the maps sampled on the band quadrature, in
+/// each shape's principal frame, minimized over the frame's four sign choices (identity and
+/// the half-turns about its axes), each a permutation of the samples (sphere_half_turn):
+/// again a metric over a finite group of isometries.
 PairResult omt_linear(const Shape& a, const Shape& b);
+
+/// The permutation of the sphere quadrature's points under the half-turn about axis 1, 2 or
+/// 3 (0: the identity): point q goes to point result[q]. Needs an even number of angles.
+std::vector<int> sphere_half_turn(int axis, const Quadrature& quad);
 
 struct WassersteinOptions {
   /// Without markers, refine the rotation of the second shape beyond the quadrature's

@@ -1,5 +1,7 @@
 #include "distance/shape.hpp"
 
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
 #include <unsupported/Eigen/FFT>
 
 #include <unistd.h>
@@ -34,11 +36,23 @@ omt::Points Quadrature::points() const {
 
 double Quadrature::weight() const { return M_PI / (static_cast<double>(rings) * angles); }
 
+Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> Quadrature::sphere_points() const {
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> p(static_cast<Eigen::Index>(rings) * angles, 3);
+  for (int k = 0; k < rings; ++k) {
+    const double z = 1 - (2.0 * k + 1) / rings, r = std::sqrt(std::max(0.0, 1 - z * z));
+    for (int j = 0; j < angles; ++j) {
+      const double a = 2 * M_PI * (j + 0.5) / angles;
+      p.row(static_cast<Eigen::Index>(k) * angles + j) << r * std::cos(a), r * std::sin(a), z;
+    }
+  }
+  return p;
+}
+
 std::string ShapeOptions::fingerprint() const {
   char buf[256];
-  std::snprintf(buf, sizeof buf, "disk;center=%d;boundary=%d;ktol=%.17g;otol=%.17g;wtol=%.17g;quad=%dx%d",
-                center_vertex.value_or(-1), boundary_vertex.value_or(-1), conformal_tolerance, omt_tolerance,
-                transport_tolerance,
+  std::snprintf(buf, sizeof buf, "%s;center=%d;boundary=%d;ktol=%.17g;otol=%.17g;wtol=%.17g;quad=%dx%d",
+                sphere ? "sphere" : "disk", center_vertex.value_or(-1), boundary_vertex.value_or(-1),
+                conformal_tolerance, omt_tolerance, transport_tolerance,
                 quadrature.rings, quadrature.angles);
   return buf;
 }
@@ -53,6 +67,86 @@ std::string shape_key(const mesh::TriMesh& m, const ShapeOptions& opt) {
   return h.hex();
 }
 
+namespace {
+
+// Def. 2.24's OMT map on the sphere: the conformal sphere map (sec. 3.2.5) in its principal
+// frame, the transport from the sphere's uniform measure onto the vertex measure through
+// the stereographic plane from the frame's third axis (Domain::stereographic_sphere, the
+// construction of the area-preserving sphere map), and each quadrature point takes the
+// position of its cell's site.
+Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s) {
+  if (opt.center_vertex || opt.boundary_vertex)
+    invalid(s.name + ": markers are for the disk; on the sphere the frame comes from the shape");
+  if (opt.quadrature.angles % 2 != 0) invalid("the sphere's quadrature needs an even number of angles");
+  conformal::ConformalOptions copt;
+  copt.tolerance = opt.conformal_tolerance;
+  const conformal::ConformalMap c = conformal::map_to_sphere(m, copt);
+  if (!c.converged)
+    fail(ErrorCode::kNotConverged, s.name + ": the conformal sphere map did not converge (max |K - Kbar| = " +
+                                       std::to_string(c.max_curvature_error) + ")");
+  if (c.folded_faces > 0)
+    fail(ErrorCode::kNotConverged, s.name + ": the conformal sphere map folds " + std::to_string(c.folded_faces) + " faces");
+  s.sphere = true;
+  s.conformal_iterations = c.newton_iterations;
+  s.curvature_error = c.max_curvature_error;
+  s.tri = m.F;
+  s.mass = mesh::vertex_areas(m) * (4 * M_PI / mesh::total_area(m));
+  Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
+  for (int v = 0; v < m.num_vertices(); ++v) M += s.mass[v] * c.positions.row(v).transpose() * c.positions.row(v);
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(M);
+  Eigen::Matrix3d E;
+  E.col(0) = eig.eigenvectors().col(2);
+  E.col(1) = eig.eigenvectors().col(1);
+  // Each axis points where the area's third moment along it is positive (the skewed side):
+  // a rotated copy then gets the same frame, not one turned by a half-turn.
+  for (int k = 0; k < 2; ++k) {
+    double third = 0;
+    for (int v = 0; v < m.num_vertices(); ++v) third += s.mass[v] * std::pow(c.positions.row(v).dot(E.col(k)), 3);
+    if (third < 0) E.col(k) = -E.col(k);
+  }
+  E.col(2) = E.col(0).cross(E.col(1));
+  const mesh::Vertices X = c.positions * E;  // rows E^T x: coordinates in the frame
+  s.normalization = c.normalization + ", principal frame of the pushed-forward area (eigenvalues " +
+                    std::to_string(eig.eigenvalues()[2]) + ", " + std::to_string(eig.eigenvalues()[1]) + ", " +
+                    std::to_string(eig.eigenvalues()[0]) + ")";
+  // The transport runs in the stereographic plane with its quadratic cost, which depends on
+  // where the pole is: every shape puts it at the same place of its frame, so that all maps
+  // answer the same transport problem (a pole per shape, as the area-preserving map picks,
+  // made bear and its remesh bear_bis look unrelated). The direction (1, 2, 3) / sqrt(14)
+  // avoids the frame's axes and planes, where symmetric meshes put vertices.
+  const Eigen::Vector3d pole = Eigen::Vector3d(1, 2, 3).normalized();
+  const Eigen::Matrix3d R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  const mesh::Vertices Y = X * R.transpose();  // rows R x: the pole at +z
+  omt::Points sites(X.rows(), 2);
+  double nearest = 2;
+  for (Eigen::Index v = 0; v < X.rows(); ++v) {
+    nearest = std::min(nearest, (X.row(v).transpose() - pole).norm());
+    sites.row(v) << Y(v, 0) / (1 - Y(v, 2)), Y(v, 1) / (1 - Y(v, 2));
+  }
+  if (nearest < 1e-7)
+    fail(ErrorCode::kNotConverged, s.name + ": a vertex's image lies on the pole of the stereographic projection");
+  omt::OmtOptions oopt;
+  oopt.tolerance = opt.omt_tolerance;
+  const omt::OmtResult r = omt::transport_to_mesh_sites(m, omt::Domain::stereographic_sphere(), sites, s.mass, oopt);
+  s.sites = sites;
+  s.h = r.h;
+  s.omt_iterations = r.iterations;
+  s.omt_error = r.max_relative_error;
+  const Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> q = opt.quadrature.sphere_points() * R.transpose();
+  omt::Points plane(q.rows(), 2);
+  for (Eigen::Index k = 0; k < q.rows(); ++k) {
+    // A point at the pole itself (measure zero) is nudged off it.
+    const double d = std::max(1 - q(k, 2), 1e-300);
+    plane.row(k) << q(k, 0) / d, q(k, 1) / d;
+  }
+  const std::vector<int> cell = omt::PowerDiagrams(omt::Domain::stereographic_sphere(), sites, false).locate(r.h, plane);
+  s.sphere_samples.resize(q.rows(), 3);
+  for (Eigen::Index k = 0; k < q.rows(); ++k) s.sphere_samples.row(k) = X.row(cell[k]);
+  return s;
+}
+
+}  // namespace
+
 Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const ShapeOptions& opt) {
   if (opt.quadrature.rings < 1 || opt.quadrature.angles < 4)
     invalid("the quadrature needs at least 1 ring and 4 angles");
@@ -63,6 +157,9 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
   s.key = shape_key(m, opt);
   s.vertices = m.num_vertices();
   s.faces = m.num_faces();
+  s.rings = opt.quadrature.rings;
+  s.angles = opt.quadrature.angles;
+  if (opt.sphere) return prepare_sphere(m, opt, std::move(s));
   // Alg. 5 step 2: the conformal map onto the unit disk, Moebius-normalized (Thm 2.13).
   conformal::ConformalOptions copt;
   copt.tolerance = opt.conformal_tolerance;
@@ -138,7 +235,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
 
 namespace {
 
-constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '3'};
+constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '4'};
 
 struct Writer {
   std::ostream& os;
@@ -201,6 +298,9 @@ void save_shape(const Shape& s, const std::string& path) {
     w.pod(s.vertices);
     w.pod(s.faces);
     w.pod(s.markers);
+    w.pod(s.sphere);
+    w.pod(s.rings);
+    w.pod(s.angles);
     w.pod(s.conformal_iterations);
     w.pod(s.curvature_error);
     w.pod(s.omt_iterations);
@@ -214,6 +314,7 @@ void save_shape(const Shape& s, const std::string& path) {
     w.mat(s.h);
     w.mat(s.samples);
     w.mat(s.spectrum);
+    w.mat(s.sphere_samples);
     os.write(kMagic, sizeof kMagic);  // a whole file ends as it begins
     if (!os.flush()) fail(ErrorCode::kResourceExhausted, "cannot write the cache file " + tmp);
   }
@@ -236,6 +337,9 @@ bool load_shape(const std::string& path, Shape& out) {
   r.pod(s.vertices);
   r.pod(s.faces);
   r.pod(s.markers);
+  r.pod(s.sphere);
+  r.pod(s.rings);
+  r.pod(s.angles);
   r.pod(s.conformal_iterations);
   r.pod(s.curvature_error);
   r.pod(s.omt_iterations);
@@ -249,10 +353,15 @@ bool load_shape(const std::string& path, Shape& out) {
   r.mat(s.h);
   r.mat(s.samples);
   r.mat(s.spectrum);
+  r.mat(s.sphere_samples);
   if (!r.ok || !is.read(magic, 8) || !std::equal(magic, magic + 8, kMagic)) return false;
   if (s.sites.rows() != s.vertices || s.mass.size() != s.vertices || s.tri.rows() != s.faces ||
-      s.density.size() != s.faces || s.h.size() != s.vertices || s.samples.rows() != s.spectrum.rows() ||
+      (!s.sphere && s.density.size() != s.faces) || s.h.size() != s.vertices || s.samples.rows() != s.spectrum.rows() ||
       s.samples.cols() != s.spectrum.cols())
+    return false;
+  const long long samples = static_cast<long long>(s.rings) * s.angles;
+  if (s.rings < 1 || s.angles < 4 ||
+      (s.sphere ? s.sphere_samples.rows() != samples : s.samples.rows() != s.rings || s.samples.cols() != s.angles))
     return false;
   if (s.faces > 0 && (s.tri.minCoeff() < 0 || s.tri.maxCoeff() >= s.vertices)) return false;
   out = std::move(s);

@@ -24,9 +24,17 @@ struct Quadrature {
   int angles = 256;
   omt::Points points() const;  // ring-major: point (k, j) is row k * angles + j
   double weight() const;
+  /// On the unit sphere: `rings` bands of equal area (point (k, j) at height
+  /// z_k = 1 - (2k + 1) / rings, longitude 2 pi (j + 1/2) / angles), each point weighing
+  /// 4 pi / (rings * angles). With `angles` even, the half-turns about the three axes permute
+  /// the points (what omt_linear uses on the sphere).
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> sphere_points() const;
 };
 
 struct ShapeOptions {
+  /// The domain: false, topological disks onto the unit disk; true, closed genus-0
+  /// surfaces onto the unit sphere (the OMT-map distance only, for now).
+  bool sphere = false;
   /// Markers of Def. 2.24 / Thm 2.13: an interior vertex sent to 0 and a boundary vertex to
   /// 1. Without them, the Moebius map that centres the pushed-forward area, and the
   /// distances minimize over rotations.
@@ -49,6 +57,8 @@ struct Shape {
   std::string name;
   std::string key;  // SHA-256 of the mesh's arrays and the options' fingerprint
   int vertices = 0, faces = 0;
+  bool sphere = false;           // the domain (ShapeOptions::sphere)
+  int rings = 0, angles = 0;     // of the quadrature the map was sampled on
   bool markers = false;          // the normalization used the markers
   std::string normalization;     // how the Moebius freedom was fixed
   // Alg. 5 steps 1-4: the surface scaled to area pi, its conformal image of the disk,
@@ -63,6 +73,10 @@ struct Shape {
   Eigen::VectorXd h;
   Eigen::MatrixXcd samples;   // rings x angles
   Eigen::MatrixXcd spectrum;  // each ring's discrete Fourier transform over the angles
+  /// Sphere: the OMT map of the uniform sphere onto the vertex measure, the conformal image
+  /// put in the principal frame of its pushed-forward area (see prepare_shape), sampled on
+  /// Quadrature::sphere_points (one row per point: the site's position on the sphere).
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> sphere_samples;
   /// W2^2 from the density to the shape's own vertex measure (its quantization cost, the
   /// bias the Wasserstein distance removes), by the same transport as a pair's.
   double quantization = 0;
@@ -73,9 +87,13 @@ struct Shape {
   double omt_error = 0;
 };
 
-/// Prepares a topological disk: throws Error(kInvalidArgument) for another topology or bad
-/// markers, Error(kNotConverged) naming the step when the conformal map or the transport
-/// does not converge (a shape is never used half-computed).
+/// Prepares a topological disk (or, with options.sphere, a closed genus-0 surface): throws
+/// Error(kInvalidArgument) for another topology or bad markers, Error(kNotConverged) naming
+/// the step when the conformal map or the transport does not converge (a shape is never
+/// used half-computed). On the sphere the conformal map, centred by Moebius maps, is free up
+/// to a rotation; it is put in the principal frame of its pushed-forward area (the
+/// eigenvectors of sum_i nu_i X_i X_i^T, largest first, right-handed), which leaves the
+/// half-turns about the frame's axes, and those omt_linear tries.
 Shape prepare_shape(const mesh::TriMesh& mesh, const std::string& name, const ShapeOptions& options);
 
 /// The cache key prepare_shape would give (computable before the work).

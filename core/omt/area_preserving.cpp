@@ -197,11 +197,7 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   return out;
 }
 
-AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
-  const int nv = m.num_vertices();
-  const Eigen::VectorXd nu = weighted_masses(m, opt);
-  AreaPreservingMap out = starting_from(conformal::map_to_sphere(m, opt.conformal));
-  const mesh::Vertices& X = out.conformal.positions;
+Points stereographic_sites(const mesh::TriMesh& m, const mesh::Vertices& X, Eigen::Matrix3d& R) {
   // The north pole (infinity of the stereographic plane) goes to the centre of the face
   // with the largest image, as far from every vertex as the map allows.
   int widest = 0;
@@ -213,10 +209,20 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   }
   const Eigen::Vector3d pole =
       (X.row(m.F(widest, 0)) + X.row(m.F(widest, 1)) + X.row(m.F(widest, 2))).transpose().normalized();
-  const Eigen::Matrix3d R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   const mesh::Vertices Y = X * R.transpose();  // rows R x
-  Points sites(nv, 2);
-  for (int v = 0; v < nv; ++v) sites.row(v) << Y(v, 0) / (1 - Y(v, 2)), Y(v, 1) / (1 - Y(v, 2));
+  Points sites(X.rows(), 2);
+  for (Eigen::Index v = 0; v < X.rows(); ++v) sites.row(v) << Y(v, 0) / (1 - Y(v, 2)), Y(v, 1) / (1 - Y(v, 2));
+  return sites;
+}
+
+AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
+  const int nv = m.num_vertices();
+  const Eigen::VectorXd nu = weighted_masses(m, opt);
+  AreaPreservingMap out = starting_from(conformal::map_to_sphere(m, opt.conformal));
+  const mesh::Vertices& X = out.conformal.positions;
+  Eigen::Matrix3d R;
+  const Points sites = stereographic_sites(m, X, R);
   out.omt = transport_to_mesh_sites(m, Domain::stereographic_sphere(), sites, nu, opt.omt);
   // Each vertex to its cell's centroid on the sphere, turned back.
   out.positions = out.omt.cells.sphere_centroid * R;  // rows R^T c

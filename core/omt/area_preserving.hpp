@@ -40,6 +40,11 @@ Eigen::VectorXd vertex_masses(const mesh::TriMesh& mesh);
 OmtResult transport_to_mesh_sites(const mesh::TriMesh& m, const Domain& domain, const Points& sites,
                                   const Eigen::VectorXd& nu, const OmtOptions& options);
 
+/// The stereographic sites of a map X of m onto the unit sphere (sec. 3.2.5): X turned by R
+/// so that the north pole lies in the middle of the face with the widest image (no site at
+/// infinity), then projected, y = (x1, x2) / (1 - x3). R gets the turn.
+Points stereographic_sites(const mesh::TriMesh& m, const mesh::Vertices& X, Eigen::Matrix3d& R);
+
 /// With options.t > 0, the map phi_t between the area-preserving map phi_0 and the conformal
 /// map phi_1 (sec. 3.2.8): phi_t = grad u_t o phi_0 with u_t = (1 - t) |x|^2 / 2 + t u_1,
 /// where grad u_1 is the OT map (the cell W_i to the site p_i = phi_1(v_i)), so vertex i goes

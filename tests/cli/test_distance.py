@@ -240,6 +240,40 @@ for ext in ["npy", "json"]:
         j = json.load(open(out))
         check(len(j["names"]) == 4 and j["method"] == "omt-linear" and len(j["matrix"]) == 4, "json matrix")
 
+def refused(args, words, code=2):
+    rc, so, se = run(*args)
+    check(rc == code and se.count("\n") == 1 and all(w in se for w in words),
+          f"{args}: exit {rc} (want {code}), stderr {se!r} should name {words}")
+
+
+# ---- the sphere: closed genus-0 surfaces, OMT-map distance ---------------------------------
+sphere_files, sphere_labels = [], {}
+for name in ["ellipe0.003", "blobby", "retinal"]:
+    v, f = read_off(mesh(name))
+    for suffix, (vv, ff) in {"": (v, f), "-deformed": (deform(v), f), "-remeshed": subdivide(rigid(v, 0.5), f, rng)}.items():
+        p = os.path.join(work, "sphere-" + name + suffix + ".off")
+        write_off(p, vv, ff)
+        sphere_files.append(p)
+        sphere_labels["sphere-" + name + suffix] = name
+out = os.path.join(work, "D-sphere.csv")
+rc, so, se = run("matrix", *sphere_files, "-o", out, "--method", "omt-linear", "--domain", "sphere", "--cache", cache)
+check(rc == 0 and se == "", f"sphere matrix: exit {rc}, stderr {se!r}")
+if rc == 0:
+    names, d = read_matrix(out)
+    for i, n in enumerate(names):
+        order = [j for j in np.argsort(d[i], kind="stable") if j != i]
+        check({sphere_labels[names[j]] for j in order[:2]} == {sphere_labels[n]},
+              f"sphere: the two nearest shapes of {n} are its copies, not {[names[j] for j in order[:2]]}")
+    worst = max(d[i, k] - d[i, j] - d[j, k] for i in range(len(d)) for j in range(len(d)) for k in range(len(d)))
+    check(worst <= 1e-12, f"sphere: triangle inequality violated by {worst}")
+v, f = read_off(mesh("blobby"))
+write_off(os.path.join(work, "blobby-moved.off"), rigid(v), f)
+j = distance(mesh("blobby"), os.path.join(work, "blobby-moved.off"), "--domain", "sphere", "--method", "omt-linear")
+check(j and j["distance"] < 1e-6, f"sphere: d(A, rigidly moved A) = {j and j['distance']}")
+refused(["distance", mesh("blobby"), mesh("retinal"), "--domain", "sphere"], ["sphere", "omt-linear"])
+refused(["distance", mesh("blobby"), mesh("nefertiti"), "--domain", "sphere", "--method", "omt-linear"],
+        ["nefertiti", "closed genus-0"])
+
 # ---- tiles: any split, any thread count, merged bit-identical to one run -------------------
 subset = files[:6]
 single = os.path.join(work, "single.csv")
@@ -261,14 +295,7 @@ check(rc == 0 and open(merged, "rb").read() == open(single, "rb").read(),
 # ---- errors: exit 2 and one line on stderr --------------------------------------------------
 
 
-def refused(args, words, code=2):
-    rc, so, se = run(*args)
-    check(rc == code and se.count("\n") == 1 and all(w in se for w in words),
-          f"{args}: exit {rc} (want {code}), stderr {se!r} should name {words}")
-
-
 refused(["distance", mesh("bear"), mesh("nefertiti")], ["bear", "--cut-hole"])
-refused(["distance", mesh("nefertiti"), mesh("patch-01"), "--domain", "sphere"], ["sphere"])
 refused(["distance", mesh("nefertiti"), mesh("patch-01"), "--center-a", "3"], ["markers"])
 refused(["distance", mesh("nefertiti"), mesh("patch-01"), "--center-a", "3", "--boundary-a", "99999",
          "--center-b", "1", "--boundary-b", "2"], ["99999"])

@@ -169,6 +169,39 @@ TEST(Distance, MarkersFixTheTurnAndMustBeGivenForBoth) {
   EXPECT_THROW(distance::prepare_shape(m, "d", half), Error);
 }
 
+TEST(Distance, HalfTurnsPermuteTheSphereQuadrature) {
+  distance::Quadrature q;
+  q.rings = 7;
+  q.angles = 10;
+  const auto X = q.sphere_points();
+  const Eigen::Vector3d flips[4] = {{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1, 1}};
+  EXPECT_NEAR(X.rowwise().norm().maxCoeff(), 1.0, 1e-15);
+  for (int g = 0; g < 4; ++g) {
+    const std::vector<int> to = distance::sphere_half_turn(g, q);
+    std::set<int> image(to.begin(), to.end());
+    EXPECT_EQ(image.size(), to.size()) << "a permutation";
+    for (int k = 0; k < static_cast<int>(to.size()); ++k)
+      EXPECT_LT((X.row(to[k]).transpose() - flips[g].cwiseProduct(X.row(k).transpose())).norm(), 1e-12) << g << " " << k;
+  }
+  q.angles = 9;
+  EXPECT_THROW(distance::sphere_half_turn(1, q), Error);
+}
+
+TEST(Distance, OnTheSphereARotatedCopyIsAtDistanceZero) {
+  ShapeOptions o = small_quadrature();
+  o.sphere = true;
+  mesh::TriMesh a = mesh::make_icosphere(3);
+  for (int v = 0; v < a.num_vertices(); ++v) a.V.row(v) = a.V.row(v).cwiseProduct(Eigen::RowVector3d(1.6, 1.0, 0.7));
+  mesh::TriMesh b = a;
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(2.0, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  b.V = (a.V * R.transpose()).eval();
+  const Shape A = distance::prepare_shape(a, "a", o), B = distance::prepare_shape(b, "b", o);
+  EXPECT_LT(distance::omt_linear(A, B).distance, 1e-6);
+  EXPECT_EQ(distance::omt_linear(A, A).distance, 0.0);
+  EXPECT_THROW(distance::wasserstein(A, B), Error);
+  EXPECT_THROW(distance::prepare_shape(mesh::make_disk(6), "disk", o), Error);
+}
+
 TEST(Distance, ClosedSurfacesAreRefusedOnTheDisk) {
   EXPECT_THROW(distance::prepare_shape(mesh::make_icosphere(2), "ball", small_quadrature()), Error);
 }

@@ -54,10 +54,12 @@ struct ShapeFlags {
   std::string domain = "disk";
 
   distance::ShapeOptions shape_options() const {
-    if (domain == "sphere")
-      invalid("distances on the sphere domain are not implemented yet; map closed genus-0 surfaces onto the disk "
-              "with --domain disk --cut-hole");
+    if (domain == "sphere" && method == "wasserstein")
+      invalid("the exact Wasserstein distance on the sphere is not implemented yet; use --method omt-linear, or "
+              "--domain disk --cut-hole");
+    if (domain == "sphere" && cut) invalid("--cut-hole applies to the disk domain");
     distance::ShapeOptions o;
+    o.sphere = domain == "sphere";
     o.transport_tolerance = tolerance;
     o.quadrature.rings = rings;
     o.quadrature.angles = angles;
@@ -80,7 +82,11 @@ struct ShapeFlags {
     in.name = std::filesystem::path(path).stem().string();
     in.mesh = cm.mesh;
     const mesh::Topology t = mesh::compute_topology(in.mesh);
-    if (cut && t.mesh_class == mesh::MeshClass::kSphere) {
+    if (domain == "sphere") {
+      if (t.mesh_class != mesh::MeshClass::kSphere)
+        invalid(path + ": is a " + std::string(mesh::class_name(t.mesh_class)) +
+                " mesh; shape distances on the sphere need closed genus-0 surfaces");
+    } else if (cut && t.mesh_class == mesh::MeshClass::kSphere) {
       mesh::CutHole h = mesh::cut_hole(in.mesh, std::nullopt);
       std::vector<int> back(cm.vertex_origin.size(), -1);
       for (size_t i = 0; i < h.vertex_origin.size(); ++i) back[h.vertex_origin[i]] = static_cast<int>(i);
@@ -161,13 +167,14 @@ int run_distance(const DistanceOptions& o) {
     nlohmann::json j = pair_json(r, o.flags.method);
     j["a"] = o.a;
     j["b"] = o.b;
-    j["domain"] = "disk";
+    j["domain"] = o.flags.domain;
     j["seconds"] = {{"total", seconds_since(t0)}, {"shapes", t_shapes}, {"pair", t_pair}};
     for (const distance::Shape& x : s)
       j["shapes"].push_back({{"name", x.name},
                              {"vertices", x.vertices},
                              {"faces", x.faces},
                              {"key", x.key},
+                             {"normalization", x.normalization},
                              {"conformal_newton_iterations", x.conformal_iterations},
                              {"quantization_w2", std::sqrt(x.quantization)},
                              {"omt_newton_iterations", x.omt_iterations}});
