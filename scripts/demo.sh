@@ -48,3 +48,12 @@ echo "== brenier-compute map data/meshes/lion-head.off --method area-preserving 
 echo
 echo "== brenier-compute map data/meshes/bear.off --domain sphere --method area-preserving -o out/bear-sphere-area.ply"
 "$BC" map "$M/bear.off" --domain sphere --method area-preserving -o "$OUT/bear-sphere-area.ply"
+echo
+echo "== brenier-compute distance data/meshes/nefertiti.off data/meshes/mesh_with_border.off --both (conformal Wasserstein, Alg. 5)"
+"$BC" distance "$M/nefertiti.off" "$M/mesh_with_border.off" --both
+echo
+echo "== brenier-compute matrix (six disk meshes, OMT-map distance) -o out/D.csv, then MDS"
+"$BC" matrix "$M"/{nefertiti,mesh_with_border,patch-01,patch-13,patch-23,blob}.off -o "$OUT/D.csv" \
+  --method omt-linear --cache "$OUT/shape-cache"
+cat "$OUT/D.csv"
+"$BC" mds "$OUT/D.csv" -o "$OUT/mds.csv"
