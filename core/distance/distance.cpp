@@ -5,9 +5,11 @@
 #include <algorithm>
 #include <cmath>
 #include <complex>
+#include <mutex>
 #include <vector>
 
 #include "common/error.hpp"
+#include "common/parallel.hpp"
 
 namespace brenier::distance {
 
@@ -203,8 +205,15 @@ PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions&
   struct Eval {
     double angle, mean, forward, backward, raw_forward, raw_backward;
   };
-  auto one_way = [&](const Shape& src, const Shape& dst, double angle, Eigen::VectorXd& h, double& raw) {
-    const TransportCost c = transport_cost(src, dst, angle, dst.transport_tolerance, opt.progress, h);
+  // One call's progress at a time, when the two directions run side by side.
+  std::mutex progress_mutex;
+  omt::Progress progress;
+  if (opt.progress)
+    progress = [&](int iteration, double residual) {
+      std::lock_guard<std::mutex> lock(progress_mutex);
+      return opt.progress(iteration, residual);
+    };
+  auto add = [&](const TransportCost& c, const Shape& dst, double& raw) {
     out.newton_iterations += c.iterations;
     out.max_relative_error = std::max(out.max_relative_error, c.max_relative_error);
     out.converged = out.converged && c.converged;
@@ -212,11 +221,17 @@ PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions&
     return std::sqrt(std::max(0.0, c.w2_squared - (opt.debias ? dst.quantization : 0.0)));
   };
   // d(A, R_theta B) both ways: the second direction turns A back instead (same thing, by the
-  // rotation invariance of both measures' disk).
+  // rotation invariance of both measures' disk). The two transports are independent, and
+  // each is bit-identical on any number of threads.
   auto evaluate = [&](double angle) {
+    TransportCost c[2];
+    parallel_for(2, opt.parallel_directions ? 2 : 1, [&](int k) {
+      c[k] = k == 0 ? transport_cost(a, b, angle, b.transport_tolerance, progress, h_ab)
+                    : transport_cost(b, a, -angle, a.transport_tolerance, progress, h_ba);
+    });
     Eval e{angle, 0, 0, 0, 0, 0};
-    e.forward = one_way(a, b, angle, h_ab, e.raw_forward);
-    e.backward = one_way(b, a, -angle, h_ba, e.raw_backward);
+    e.forward = add(c[0], b, e.raw_forward);
+    e.backward = add(c[1], a, e.raw_backward);
     e.mean = 0.5 * (e.forward + e.backward);
     return e;
   };

@@ -64,6 +64,9 @@ struct WassersteinOptions {
   /// surfaces' measures to O(h^2) instead of O(h), and d(A, A) is exactly 0 (the same
   /// transport is solved on both sides of the difference).
   bool debias = true;
+  /// Solve the two directions on two threads (one OpenMP thread each): for a single pair.
+  /// A matrix runs its pairs on its own pool and leaves this off.
+  bool parallel_directions = false;
   omt::Progress progress;
 };
 

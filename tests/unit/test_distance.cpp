@@ -115,6 +115,9 @@ TEST(Distance, IsSymmetricAndObeysTheTriangleInequality) {
       w[i][j] = distance::wasserstein(s[i], s[j]).distance;
       l[i][j] = distance::omt_linear(s[i], s[j]).distance;
     }
+  distance::WassersteinOptions side_by_side;
+  side_by_side.parallel_directions = true;
+  EXPECT_EQ(distance::wasserstein(s[0], s[1], side_by_side).distance, w[0][1]) << "bit-identical on two threads";
   for (int i = 0; i < 4; ++i)
     for (int j = 0; j < 4; ++j) {
       EXPECT_NEAR(w[i][j], w[j][i], 1e-9);

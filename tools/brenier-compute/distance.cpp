@@ -159,9 +159,10 @@ int run_distance(const DistanceOptions& o) {
   parallel_for(2, 2, [&](int k) { s[k] = distance::prepare_shape(in[k].mesh, in[k].name, in[k].options); });
   const double t_shapes = seconds_since(t0);
   const auto t1 = std::chrono::steady_clock::now();
-  const distance::PairResult r = method == distance::Method::kWasserstein
-                                     ? distance::wasserstein(s[0], s[1], o.flags.wasserstein())
-                                     : distance::omt_linear(s[0], s[1]);
+  distance::WassersteinOptions wo = o.flags.wasserstein();
+  wo.parallel_directions = hardware_threads() > 1;
+  const distance::PairResult r = method == distance::Method::kWasserstein ? distance::wasserstein(s[0], s[1], wo)
+                                                                          : distance::omt_linear(s[0], s[1]);
   const double t_pair = seconds_since(t1);
   if (o.json) {
     nlohmann::json j = pair_json(r, o.flags.method);
