@@ -20,8 +20,9 @@ struct OmtOptions {
   double tolerance = 1e-8;
   int max_iterations = 200;
   Progress progress;
-  /// Heights to start from (one per site; empty: the Voronoi diagram of Alg. 2), e.g. the
-  /// solution of a nearby problem. A start that leaves a cell empty falls back to Voronoi.
+  /// Heights to start from (one per site), e.g. the solution of a nearby problem: used when
+  /// it leaves no cell empty and is nearer the targets than the Voronoi diagram of Alg. 2
+  /// (which is the start otherwise).
   Eigen::VectorXd initial_h;
 };
 
@@ -34,7 +35,7 @@ struct OmtResult {
   bool converged = false;
   long linear_iterations = 0;  // preconditioned CG iterations, summed
   int factorizations = 0;
-  bool warm_started = false;  // options.initial_h was used (it left no cell empty)
+  bool warm_started = false;  // options.initial_h was the start
 };
 
 /// The OT map from the uniform density on `domain` to the sites with masses `nu` (any
