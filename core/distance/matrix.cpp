@@ -51,12 +51,12 @@ std::string matrix_fingerprint(const std::vector<ShapeInput>& shapes, const Matr
     const ShapeOptions& o = x.options;
     if (o.quadrature.rings != s.quadrature.rings || o.quadrature.angles != s.quadrature.angles ||
         o.conformal_tolerance != s.conformal_tolerance || o.omt_tolerance != s.omt_tolerance ||
-        o.transport_tolerance != s.transport_tolerance)
-      invalid("shape '" + x.name + "' has other quadrature or tolerance options than '" + shapes.front().name + "'");
+        o.transport_tolerance != s.transport_tolerance || o.sphere != s.sphere)
+      invalid("shape '" + x.name + "' has other domain, quadrature or tolerance options than '" + shapes.front().name + "'");
   }
   char buf[256];
-  std::snprintf(buf, sizeof buf, "%s;quad=%dx%d;ktol=%.17g;otol=%.17g;wtol=%.17g", method_name(opt.method),
-                s.quadrature.rings, s.quadrature.angles, s.conformal_tolerance, s.omt_tolerance, s.transport_tolerance);
+  std::snprintf(buf, sizeof buf, "%s;%s;quad=%dx%d;ktol=%.17g;otol=%.17g;wtol=%.17g", method_name(opt.method),
+                s.sphere ? "sphere" : "disk", s.quadrature.rings, s.quadrature.angles, s.conformal_tolerance, s.omt_tolerance, s.transport_tolerance);
   std::string out = buf;
   if (opt.method == Method::kWasserstein) {
     std::snprintf(buf, sizeof buf, ";refine=%d;debias=%d", opt.wasserstein.refine_rotation ? 1 : 0,
@@ -67,6 +67,18 @@ std::string matrix_fingerprint(const std::vector<ShapeInput>& shapes, const Matr
 }
 
 }  // namespace
+
+Shape cached_shape(const ShapeInput& in, const std::string& cache_dir, const omt::Progress& progress) {
+  const std::string key = shape_key(in.mesh, in.options);
+  const std::string path = cache_dir.empty() ? "" : cache_dir + "/" + key + ".shape";
+  Shape s;
+  if (path.empty() || !load_shape(path, s) || s.key != key) {
+    s = prepare_shape(in.mesh, in.name, in.options, progress);
+    if (!path.empty()) save_shape(s, path);
+  }
+  s.name = in.name;
+  return s;
+}
 
 MatrixTile compute_tile(const std::vector<ShapeInput>& shapes, const MatrixOptions& opt) {
   const int n = static_cast<int>(shapes.size());
@@ -103,14 +115,7 @@ MatrixTile compute_tile(const std::vector<ShapeInput>& shapes, const MatrixOptio
   std::vector<Shape> prepared(n);
   parallel_for(static_cast<int>(needed.size()), opt.jobs, [&](int k) {
     const int i = needed[k];
-    const std::string path = opt.cache_dir.empty() ? "" : opt.cache_dir + "/" + tile.keys[i] + ".shape";
-    Shape s;
-    if (path.empty() || !load_shape(path, s) || s.key != tile.keys[i]) {
-      s = prepare_shape(shapes[i].mesh, shapes[i].name, shapes[i].options);
-      if (!path.empty()) save_shape(s, path);
-    }
-    s.name = shapes[i].name;
-    prepared[i] = std::move(s);
+    prepared[i] = cached_shape(shapes[i], opt.cache_dir, opt.solver_progress);
     tick("shapes", static_cast<int>(needed.size()));
   });
   done = 0;
@@ -120,7 +125,10 @@ MatrixTile compute_tile(const std::vector<ShapeInput>& shapes, const MatrixOptio
     PairEntry& e = tile.pairs[k];
     e.i = i;
     e.j = j;
-    e.result = opt.method == Method::kWasserstein ? wasserstein(prepared[i], prepared[j], opt.wasserstein)
+    if (opt.solver_progress && !opt.solver_progress(0, 0)) fail(ErrorCode::kCancelled, "cancelled");
+    WassersteinOptions wo = opt.wasserstein;
+    if (opt.solver_progress) wo.progress = opt.solver_progress;
+    e.result = opt.method == Method::kWasserstein ? wasserstein(prepared[i], prepared[j], wo)
                                                   : omt_linear(prepared[i], prepared[j]);
     tick("pairs", static_cast<int>(pairs.size()));
   });

@@ -39,7 +39,15 @@ struct MatrixOptions {
   std::string cache_dir;   // prepared shapes are kept here by key (empty: no cache)
   /// Called (never concurrently) as shapes and pairs finish: stage "shapes" or "pairs".
   std::function<void(const std::string& stage, int done, int total)> progress;
+  /// Passed to every solve (shapes and pairs; may be called from several workers at once):
+  /// returning false cancels the tile (Error(kCancelled)).
+  omt::Progress solver_progress;
 };
+
+/// Shape `in` prepared (prepare_shape), or read back from `cache_dir` when a file of the same
+/// key is there; a fresh one is saved there (written whole, then renamed: safe between
+/// processes). Empty cache_dir: no cache.
+Shape cached_shape(const ShapeInput& in, const std::string& cache_dir, const omt::Progress& progress = {});
 
 struct PairEntry {
   int i = 0, j = 0;

@@ -34,8 +34,6 @@ omt::Points Quadrature::points() const {
   return p;
 }
 
-double Quadrature::weight() const { return M_PI / (static_cast<double>(rings) * angles); }
-
 Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> Quadrature::sphere_points() const {
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> p(static_cast<Eigen::Index>(rings) * angles, 3);
   for (int k = 0; k < rings; ++k) {
@@ -74,12 +72,13 @@ namespace {
 // the stereographic plane from the frame's third axis (Domain::stereographic_sphere, the
 // construction of the area-preserving sphere map), and each quadrature point takes the
 // position of its cell's site.
-Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s) {
+Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, const omt::Progress& progress) {
   if (opt.center_vertex || opt.boundary_vertex)
     invalid(s.name + ": markers are for the disk; on the sphere the frame comes from the shape");
   if (opt.quadrature.angles % 2 != 0) invalid("the sphere's quadrature needs an even number of angles");
   conformal::ConformalOptions copt;
   copt.tolerance = opt.conformal_tolerance;
+  copt.progress = progress;
   const conformal::ConformalMap c = conformal::map_to_sphere(m, copt);
   if (!c.converged)
     fail(ErrorCode::kNotConverged, s.name + ": the conformal sphere map did not converge (max |K - Kbar| = " +
@@ -127,6 +126,7 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s) {
     fail(ErrorCode::kNotConverged, s.name + ": a vertex's image lies on the pole of the stereographic projection");
   omt::OmtOptions oopt;
   oopt.tolerance = opt.omt_tolerance;
+  oopt.progress = progress;
   const omt::OmtResult r = omt::transport_to_mesh_sites(m, omt::Domain::stereographic_sphere(), sites, s.mass, oopt);
   s.sites = sites;
   s.h = r.h;
@@ -147,7 +147,8 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s) {
 
 }  // namespace
 
-Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const ShapeOptions& opt) {
+Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const ShapeOptions& opt,
+                    const omt::Progress& progress) {
   if (opt.quadrature.rings < 1 || opt.quadrature.angles < 4)
     invalid("the quadrature needs at least 1 ring and 4 angles");
   if (opt.center_vertex.has_value() != opt.boundary_vertex.has_value())
@@ -159,10 +160,11 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
   s.faces = m.num_faces();
   s.rings = opt.quadrature.rings;
   s.angles = opt.quadrature.angles;
-  if (opt.sphere) return prepare_sphere(m, opt, std::move(s));
+  if (opt.sphere) return prepare_sphere(m, opt, std::move(s), progress);
   // Alg. 5 step 2: the conformal map onto the unit disk, Moebius-normalized (Thm 2.13).
   conformal::ConformalOptions copt;
   copt.tolerance = opt.conformal_tolerance;
+  copt.progress = progress;
   copt.center_vertex = opt.center_vertex;
   copt.boundary_vertex = opt.boundary_vertex;
   const conformal::ConformalMap c = conformal::map_to_disk(m, copt);
@@ -193,6 +195,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
   // (Alg. 2), sampled on the quadrature: each point takes the site of its power cell.
   omt::OmtOptions oopt;
   oopt.tolerance = opt.omt_tolerance;
+  oopt.progress = progress;
   const omt::OmtResult r = omt::transport_to_mesh_sites(m, omt::Domain::unit_disk(), s.sites, s.mass, oopt);
   s.h = r.h;
   s.omt_iterations = r.iterations;
@@ -204,7 +207,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
   Eigen::VectorXd start;
   if (!(opt.transport_tolerance > 0) || !(opt.omt_tolerance > 0)) invalid("transport tolerances must be positive");
   s.transport_tolerance = opt.transport_tolerance;
-  const TransportCost q = transport_cost(s, s, 0.0, opt.transport_tolerance, {}, start);
+  const TransportCost q = transport_cost(s, s, 0.0, opt.transport_tolerance, progress, start);
   if (!q.converged)
   {
     char buf[160];

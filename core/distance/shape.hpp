@@ -10,6 +10,7 @@
 
 #include "conformal/conformal_map.hpp"
 #include "mesh/mesh.hpp"
+#include "omt/omt.hpp"
 #include "omt/power_diagram.hpp"
 
 namespace brenier::distance {
@@ -23,7 +24,6 @@ struct Quadrature {
   int rings = 64;
   int angles = 256;
   omt::Points points() const;  // ring-major: point (k, j) is row k * angles + j
-  double weight() const;
   /// On the unit sphere: `rings` bands of equal area (point (k, j) at height
   /// z_k = 1 - (2k + 1) / rings, longitude 2 pi (j + 1/2) / angles), each point weighing
   /// 4 pi / (rings * angles). With `angles` even, the half-turns about the three axes permute
@@ -94,7 +94,8 @@ struct Shape {
 /// to a rotation; it is put in the principal frame of its pushed-forward area (the
 /// eigenvectors of sum_i nu_i X_i X_i^T, largest first, right-handed), which leaves the
 /// half-turns about the frame's axes, and those omt_linear tries.
-Shape prepare_shape(const mesh::TriMesh& mesh, const std::string& name, const ShapeOptions& options);
+Shape prepare_shape(const mesh::TriMesh& mesh, const std::string& name, const ShapeOptions& options,
+                    const omt::Progress& progress = {});
 
 /// The cache key prepare_shape would give (computable before the work).
 std::string shape_key(const mesh::TriMesh& mesh, const ShapeOptions& options);

@@ -755,6 +755,11 @@ PolygonSoup read_with_openmesh(std::string_view bytes, Format format, const Read
   std::istringstream in{std::string(bytes), std::ios::in | std::ios::binary};
   bool ok = false;
   try {
+    // OpenMesh's readers are process-wide singletons that keep the options of the file being
+    // read in members: two threads reading at once (a matrix's workers, a server's uploads)
+    // would share them. One read at a time.
+    static std::mutex openmesh_mutex;
+    std::lock_guard<std::mutex> lock(openmesh_mutex);
     ok = OpenMesh::IO::IOManager().read(in, ext, importer, opt);
   } catch (const std::exception& e) {
     invalid(std::string(format_name(format)) + " file could not be parsed: " + e.what());

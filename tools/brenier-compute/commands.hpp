@@ -9,6 +9,7 @@
 #include <optional>
 #include <string>
 
+#include "jobs/jobs.hpp"
 #include "mesh/io.hpp"
 #include "mesh/topology.hpp"
 #include "mesh/validate.hpp"
@@ -41,10 +42,7 @@ void add_omt_bench(CLI::App& app, Action& action);
 /// distance, matrix, merge, mds and knn.
 void add_distance(CLI::App& app, Action& action);
 
-/// JSON of a cleaning report's problems: [{severity, code, message, count}, ...].
-nlohmann::json problems_json(const mesh::Report& report);
-/// JSON of a topology: vertices, edges, faces, components, boundary_loops, euler, genus,
-/// manifold, class.
-nlohmann::json topology_json(const mesh::Topology& t);
+using jobs::problems_json;
+using jobs::topology_json;
 
 }  // namespace brenier::tools

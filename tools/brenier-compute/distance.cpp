@@ -23,92 +23,36 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-/// Options every distance command shares.
+/// Options every distance command shares (a jobs::ShapeRequest plus the reading options).
 struct ShapeFlags {
   mesh::CleanOptions clean;
-  bool cut = false;
-  std::string method = "wasserstein";
-  double tolerance = 1e-3;
-  bool refine = false, raw = false;
-  int rings = 64, angles = 256;
+  jobs::ShapeRequest request;
   void add_to(CLI::App* cmd) {
-    cmd->add_option("--method", method, "wasserstein (exact, Alg. 5) or omt-linear (Def. 2.24 as an embedding)")
+    jobs::ShapeRequest& r = request;
+    cmd->add_option("--method", r.method, "wasserstein (exact, Alg. 5) or omt-linear (Def. 2.24 as an embedding)")
         ->check(CLI::IsMember({"wasserstein", "omt-linear"}));
-    cmd->add_option("--domain", domain, "disk (closed genus-0 surfaces with --cut-hole)")
+    cmd->add_option("--domain", r.domain, "disk (closed genus-0 surfaces with --cut-hole)")
         ->check(CLI::IsMember({"disk", "sphere"}));
-    cmd->add_flag("--cut-hole", cut, "open closed genus-0 meshes into disks by removing one vertex's star");
-    cmd->add_option("--tolerance", tolerance, "wasserstein: max relative cell-mass error of each transport (default 1e-3; the distance is read from "
+    cmd->add_flag("--cut-hole", r.cut_hole, "open closed genus-0 meshes into disks by removing one vertex's star");
+    cmd->add_option("--tolerance", r.tolerance, "wasserstein: max relative cell-mass error of each transport (default 1e-3; the distance is read from "
                     "the dual, accurate to about the square of it)")
         ->check(CLI::PositiveNumber);
-    cmd->add_flag("--refine-rotation", refine,
+    cmd->add_flag("--refine-rotation", r.refine_rotation,
                   "wasserstein without markers: refine the rotation beyond the quadrature's step by exact "
                   "evaluations (3-4 times the work)");
-    cmd->add_flag("--raw", raw,
+    cmd->add_flag("--raw", r.raw,
                   "wasserstein: eq. 3.31 as it stands, without removing the sites' quantization cost");
-    cmd->add_option("--rings", rings, "quadrature rings of the OMT-map samples (default 64)")->check(CLI::Range(1, 4096));
-    cmd->add_option("--angles", angles, "quadrature angles per ring (default 256)")->check(CLI::Range(4, 65536));
+    cmd->add_option("--rings", r.rings, "quadrature rings of the OMT-map samples (default 64)")->check(CLI::Range(1, 4096));
+    cmd->add_option("--angles", r.angles, "quadrature angles per ring (default 256)")->check(CLI::Range(4, 65536));
     cmd->add_flag("--merge-duplicates", clean.merge_duplicates, "merge vertices with identical coordinates");
     cmd->add_flag("--keep-largest", clean.keep_largest_component, "keep the largest connected component");
     cmd->add_flag("--fix-orientation", clean.fix_orientation, "orient each component consistently");
   }
-  std::string domain = "disk";
-
-  distance::ShapeOptions shape_options() const {
-    if (domain == "sphere" && method == "wasserstein")
-      invalid("the exact Wasserstein distance on the sphere is not implemented yet; use --method omt-linear, or "
-              "--domain disk --cut-hole");
-    if (domain == "sphere" && cut) invalid("--cut-hole applies to the disk domain");
-    distance::ShapeOptions o;
-    o.sphere = domain == "sphere";
-    o.transport_tolerance = tolerance;
-    o.quadrature.rings = rings;
-    o.quadrature.angles = angles;
-    return o;
-  }
-  distance::WassersteinOptions wasserstein() const {
-    distance::WassersteinOptions w;
-    w.refine_rotation = refine;
-    w.debias = !raw;
-    return w;
-  }
 
   // Reads, checks and (with --cut-hole) opens one surface; markers are input vertex numbers.
   distance::ShapeInput load(const std::string& path, int center, int boundary) const {
-    mesh::CleanMesh cm = mesh::load_mesh(path, clean);
-    mesh::require_valid(cm, path);
-    std::vector<int> to_clean(static_cast<size_t>(cm.input_vertices), -1);
-    for (size_t i = 0; i < cm.vertex_origin.size(); ++i) to_clean[cm.vertex_origin[i]] = static_cast<int>(i);
-    distance::ShapeInput in;
-    in.name = std::filesystem::path(path).stem().string();
-    in.mesh = cm.mesh;
-    const mesh::Topology t = mesh::compute_topology(in.mesh);
-    if (domain == "sphere") {
-      if (t.mesh_class != mesh::MeshClass::kSphere)
-        invalid(path + ": is a " + std::string(mesh::class_name(t.mesh_class)) +
-                " mesh; shape distances on the sphere need closed genus-0 surfaces");
-    } else if (cut && t.mesh_class == mesh::MeshClass::kSphere) {
-      mesh::CutHole h = mesh::cut_hole(in.mesh, std::nullopt);
-      std::vector<int> back(cm.vertex_origin.size(), -1);
-      for (size_t i = 0; i < h.vertex_origin.size(); ++i) back[h.vertex_origin[i]] = static_cast<int>(i);
-      for (int& v : to_clean) v = v >= 0 ? back[v] : -1;
-      in.mesh = std::move(h.mesh);
-    } else if (t.mesh_class != mesh::MeshClass::kDisk) {
-      invalid(path + ": is a " + std::string(mesh::class_name(t.mesh_class)) +
-              " mesh; shape distances on the disk need topological disks" +
-              (t.mesh_class == mesh::MeshClass::kSphere ? " (pass --cut-hole to open it)" : ""));
-    }
-    in.options = shape_options();
-    auto marker = [&](int v, const char* what) {
-      if (v < 0 || v >= cm.input_vertices || to_clean[v] < 0)
-        invalid(path + ": " + what + " " + std::to_string(v) + " is not a vertex of the mesh");
-      return to_clean[v];
-    };
-    if ((center >= 0) != (boundary >= 0)) invalid(path + ": give both markers (center and boundary) or neither");
-    if (center >= 0) {
-      in.options.center_vertex = marker(center, "center vertex");
-      in.options.boundary_vertex = marker(boundary, "boundary vertex");
-    }
-    return in;
+    const mesh::CleanMesh cm = mesh::load_mesh(path, clean);
+    return jobs::shape_input(cm, std::filesystem::path(path).stem().string(), path, request, center, boundary);
   }
 };
 
@@ -123,23 +67,6 @@ void unique_names(std::vector<distance::ShapeInput>& shapes, const std::vector<s
     if (++count[s.name] > 1) invalid("the file " + s.name + " is given twice");
 }
 
-nlohmann::json pair_json(const distance::PairResult& r, const std::string& method) {
-  nlohmann::json j = {{"method", method},
-                      {"distance", r.distance},
-                      {"rotation_rad", r.rotation},
-                      {"normalization", r.normalization},
-                      {"converged", r.converged}};
-  if (method == "wasserstein") {
-    j["forward"] = r.forward;
-    j["backward"] = r.backward;
-    j["raw_forward"] = r.raw_forward;
-    j["raw_backward"] = r.raw_backward;
-    j["newton_iterations"] = r.newton_iterations;
-    j["max_relative_area_error"] = r.max_relative_error;
-  }
-  return j;
-}
-
 // ---- distance ----------------------------------------------------------------------------
 
 struct DistanceOptions {
@@ -151,40 +78,22 @@ struct DistanceOptions {
 
 int run_distance(const DistanceOptions& o) {
   const auto t0 = std::chrono::steady_clock::now();
-  const distance::Method method = distance::parse_method(o.flags.method);
   std::vector<distance::ShapeInput> in = {o.flags.load(o.a, o.center_a, o.boundary_a),
                                           o.flags.load(o.b, o.center_b, o.boundary_b)};
   if (in[0].name == in[1].name) in[1].name += " (b)";
-  std::vector<distance::Shape> s(2);
-  parallel_for(2, 2, [&](int k) { s[k] = distance::prepare_shape(in[k].mesh, in[k].name, in[k].options); });
-  const double t_shapes = seconds_since(t0);
-  const auto t1 = std::chrono::steady_clock::now();
-  distance::WassersteinOptions wo = o.flags.wasserstein();
-  wo.parallel_directions = hardware_threads() > 1;
-  const distance::PairResult r = method == distance::Method::kWasserstein ? distance::wasserstein(s[0], s[1], wo)
-                                                                          : distance::omt_linear(s[0], s[1]);
-  const double t_pair = seconds_since(t1);
+  jobs::DistanceOutcome d = jobs::run_distance(in[0], in[1], o.flags.request, hardware_threads());
+  const distance::PairResult& r = d.result;
   if (o.json) {
-    nlohmann::json j = pair_json(r, o.flags.method);
+    nlohmann::json& j = d.report;
     j["a"] = o.a;
     j["b"] = o.b;
-    j["domain"] = o.flags.domain;
-    j["seconds"] = {{"total", seconds_since(t0)}, {"shapes", t_shapes}, {"pair", t_pair}};
-    for (const distance::Shape& x : s)
-      j["shapes"].push_back({{"name", x.name},
-                             {"vertices", x.vertices},
-                             {"faces", x.faces},
-                             {"key", x.key},
-                             {"normalization", x.normalization},
-                             {"conformal_newton_iterations", x.conformal_iterations},
-                             {"quantization_w2", std::sqrt(x.quantization)},
-                             {"omt_newton_iterations", x.omt_iterations}});
+    j["seconds"]["total"] = seconds_since(t0);
     std::cout << j.dump(2) << std::endl;
   } else {
-    std::printf("%s %s %s: %.10g\n", o.flags.method.c_str(), s[0].name.c_str(), s[1].name.c_str(), r.distance);
-    if (o.both && method == distance::Method::kWasserstein)
-      std::printf("forward (source %s) %.10g, backward (source %s) %.10g\n", s[0].name.c_str(), r.forward,
-                  s[1].name.c_str(), r.backward);
+    std::printf("%s %s %s: %.10g\n", o.flags.request.method.c_str(), d.a.name.c_str(), d.b.name.c_str(), r.distance);
+    if (o.both && o.flags.request.method == "wasserstein")
+      std::printf("forward (source %s) %.10g, backward (source %s) %.10g\n", d.a.name.c_str(), r.forward,
+                  d.b.name.c_str(), r.backward);
     std::printf("normalization: %s; rotation %.6f rad; %.3f s\n", r.normalization.c_str(), r.rotation,
                 seconds_since(t0));
   }
@@ -229,8 +138,8 @@ std::map<std::string, std::pair<int, int>> read_markers(const std::string& path)
 int run_matrix(const MatrixCommand& o) {
   const auto t0 = std::chrono::steady_clock::now();
   distance::MatrixOptions mo;
-  mo.method = distance::parse_method(o.flags.method);
-  mo.wasserstein = o.flags.wasserstein();
+  mo.method = distance::parse_method(o.flags.request.method);
+  mo.wasserstein = o.flags.request.wasserstein();
   mo.jobs = o.jobs > 0 ? o.jobs : hardware_threads();
   mo.cache_dir = o.cache;
   if (!o.tile.empty()) mo.tile = distance::parse_tile(o.tile);

@@ -2,28 +2,6 @@
 
 namespace brenier::tools {
 
-nlohmann::json problems_json(const mesh::Report& report) {
-  nlohmann::json out = nlohmann::json::array();
-  for (const auto& p : report.problems)
-    out.push_back({{"severity", p.severity == mesh::Problem::Severity::kError ? "error" : "warning"},
-                   {"code", p.code},
-                   {"message", p.message},
-                   {"count", p.count}});
-  return out;
-}
-
-nlohmann::json topology_json(const mesh::Topology& t) {
-  return {{"vertices", t.vertices},
-          {"edges", t.edges},
-          {"faces", t.faces},
-          {"components", t.components},
-          {"boundary_loops", t.boundary_loops},
-          {"euler", t.euler},
-          {"genus", t.genus},
-          {"manifold", t.manifold},
-          {"class", mesh::class_name(t.mesh_class)}};
-}
-
 void MeshInputOptions::add_to(CLI::App* app) {
   app->add_option("mesh", path, "mesh file (OBJ, OFF, PLY, STL or a FreeSurfer surface)")
       ->required();

@@ -1,0 +1,125 @@
+// What each kind of job computes, from cleaned meshes to outputs and a JSON report: one code
+// path shared by brenier-compute (files) and brenierd (uploads, blobs), so both give the same
+// answers and the same errors. No I/O here but what the caller asks for.
+#pragma once
+
+#include <functional>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "distance/distance.hpp"
+#include "distance/matrix.hpp"
+#include "mesh/io.hpp"
+#include "mesh/topology.hpp"
+#include "mesh/validate.hpp"
+
+namespace brenier::jobs {
+
+/// One progress report of a running job: the stage ("conformal", "omt", "shapes",
+/// "pairs", ...), an estimate of the whole job's completed fraction in [0, 1], and the
+/// current solve's Newton iteration and residual (0 where a stage has none).
+struct Progress {
+  std::string stage;
+  double fraction = 0;
+  int iteration = 0;
+  double residual = 0;
+};
+/// Called as the work goes on (never concurrently for one job). Returning false cancels:
+/// the numerical loop that called it throws Error(kCancelled).
+using ProgressSink = std::function<bool(const Progress&)>;
+
+/// JSON of a cleaning report's problems: [{severity, code, message, count}, ...].
+nlohmann::json problems_json(const mesh::Report& report);
+/// JSON of a topology: vertices, edges, faces, components, boundary_loops, euler, genus,
+/// manifold, class.
+nlohmann::json topology_json(const mesh::Topology& t);
+
+// ---- map ---------------------------------------------------------------------------------
+
+struct MapRequest {
+  std::string domain = "disk";        // disk | sphere
+  std::string method = "conformal";   // conformal | area-preserving
+  int center = -1, boundary_marker = -1;  // disk markers (input vertex numbers; -1: none)
+  std::vector<int> markers;           // sphere: three input vertices sent to 0, 1, infinity
+  bool cut_hole = false;
+  int hole_vertex = -1;
+  double tolerance = 0;               // 0: the method's default (1e-7 rad; 1e-8 cell mass)
+  int max_iterations = 200;
+  std::vector<double> weights;        // area-preserving: one positive weight per input vertex
+  double t = 0;                       // area-preserving: phi_t
+  bool allow_flips = false;           // return a map that folds faces instead of failing
+};
+
+struct MapOutcome {
+  mesh::TriMesh surface;     // the mesh that was mapped (the input's order; a cut star removed)
+  mesh::Vertices positions;  // #V by 3: disk with z = 0, or on the unit sphere
+  bool disk = true;
+  /// mesh, cut_hole_vertex, domain, method, seconds{map}, conformal{...}, omt{...},
+  /// quality{...}, problems (the DESIGN.md contract; the caller adds seconds.read/total).
+  nlohmann::json report;
+};
+
+/// Checks the request against the mesh (domain, markers, weights) and computes the map
+/// (conformal: Alg. 1 / sec. 3.2.5; area-preserving: Alg. 3 / sec. 3.2.5). `what` names the
+/// mesh in messages. Throws Error(kInvalidArgument) for a request that does not fit the
+/// mesh, Error(kNotConverged) for a solve that did not converge or a map that folds faces
+/// (unless allow_flips), Error(kCancelled) when `progress` returned false.
+MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const MapRequest& request,
+                   const ProgressSink& progress = {});
+
+/// The mapped mesh as a file: the disk map as `vt u v` per vertex (OBJ) or u, v properties
+/// (PLY) on the input's positions, the sphere map as positions on the sphere.
+std::string map_mesh_bytes(const MapOutcome& map, mesh::Format format);
+void write_map_file(const MapOutcome& map, const std::string& path);
+
+/// Reads `count` whitespace-separated positive weights (Error(kInvalidArgument) naming the
+/// file and the entry otherwise).
+std::vector<double> read_weights_file(const std::string& path, int64_t count);
+
+// ---- distances ---------------------------------------------------------------------------
+
+/// Options shared by distance and matrix jobs.
+struct ShapeRequest {
+  std::string method = "wasserstein";  // wasserstein | omt-linear
+  std::string domain = "disk";         // disk | sphere
+  bool cut_hole = false;
+  double tolerance = 1e-3;             // the Wasserstein transports' max relative cell-mass error
+  bool refine_rotation = false;
+  bool raw = false;
+  int rings = 64, angles = 256;
+  /// The shape options of every shape (Error(kInvalidArgument) for combinations we refuse).
+  distance::ShapeOptions shape_options() const;
+  distance::WassersteinOptions wasserstein() const;
+};
+
+/// A cleaned, valid mesh made ready for the distances: checked against the domain, opened
+/// with a cut hole when asked, its markers (input vertex numbers, -1: none; both or neither)
+/// carried to the mesh's numbering. `what` names it in messages.
+distance::ShapeInput shape_input(const mesh::CleanMesh& cm, const std::string& name, const std::string& what,
+                                 const ShapeRequest& request, int center = -1, int boundary = -1);
+
+/// JSON of one pair: method, distance, rotation_rad, normalization, converged and, for the
+/// Wasserstein distance, forward/backward, raw_*, newton_iterations, max_relative_area_error.
+nlohmann::json pair_json(const distance::PairResult& r, const std::string& method);
+/// JSON of a prepared shape: name, vertices, faces, key, normalization, iterations.
+nlohmann::json shape_json(const distance::Shape& s);
+
+struct DistanceOutcome {
+  distance::PairResult result;
+  distance::Shape a, b;
+  nlohmann::json report;  // pair_json + domain + shapes + seconds{shapes, pair}
+};
+
+/// Both shapes prepared (on two threads when `threads` > 1), then the pair. A transport that
+/// did not converge leaves result.converged false (the caller decides); other failures throw.
+DistanceOutcome run_distance(const distance::ShapeInput& a, const distance::ShapeInput& b,
+                             const ShapeRequest& request, int threads, const ProgressSink& progress = {});
+
+/// Progress callbacks of the numerical loops (omt::Progress) reporting into `sink` under
+/// `stage`, the fraction estimated from the residual's way down to `tolerance` and mapped
+/// into [from, to] of the whole job. Empty when the sink is.
+omt::Progress solver_progress(const ProgressSink& sink, const std::string& stage, double tolerance, double from,
+                              double to);
+
+}  // namespace brenier::jobs
