@@ -16,6 +16,8 @@ enum class ErrorCode {
   kCancelled,           // the caller asked to stop
   kResourceExhausted,   // a size limit was hit
   kInternal,            // a broken invariant of ours (a bug)
+  kUnauthenticated,     // a caller without valid credentials (the service)
+  kUnavailable,         // a service that is shutting down
 };
 
 const char* error_code_name(ErrorCode code);

@@ -1,0 +1,144 @@
+// brenierd: the gRPC server (DESIGN.md "Service"). Flags may also come from a config file
+// (--config FILE, TOML or INI, keys as the long flag names).
+#include <grpcpp/ext/proto_server_reflection_plugin.h>
+#include <grpcpp/grpcpp.h>
+#include <grpcpp/health_check_service_interface.h>
+#include <spdlog/spdlog.h>
+
+#include <CLI/CLI.hpp>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <thread>
+
+#include "auth.hpp"
+#include "common/error.hpp"
+#include "manager.hpp"
+#include "service.hpp"
+
+namespace {
+
+std::string read_file(const std::string& path, const char* what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) brenier::invalid(std::string("cannot read the ") + what + " file " + path);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+struct Flags {
+  std::string listen = "127.0.0.1:50051";
+  std::string data = "brenier-data";
+  int workers = 0, queue = 64;
+  int64_t max_upload_mb = 512, max_vertices = 5'000'000;
+  std::string tokens, tls_cert, tls_key, tls_client_ca, port_file;
+  double grace = 30;
+  std::string log_level = "info";
+};
+
+int serve(const Flags& f) {
+  spdlog::set_level(spdlog::level::from_str(f.log_level));
+  // Block the stop signals in every thread; one thread waits for them.
+  sigset_t stop;
+  sigemptyset(&stop);
+  sigaddset(&stop, SIGTERM);
+  sigaddset(&stop, SIGINT);
+  pthread_sigmask(SIG_BLOCK, &stop, nullptr);
+  // OpenMP threads of concurrent jobs wait passively instead of spinning on the cores.
+  setenv("OMP_WAIT_POLICY", "passive", 0);
+
+  brenier::server::Auth auth = f.tokens.empty() ? brenier::server::Auth() : brenier::server::Auth::from_file(f.tokens);
+  std::shared_ptr<grpc::ServerCredentials> creds = grpc::InsecureServerCredentials();
+  if (!f.tls_cert.empty() || !f.tls_key.empty()) {
+    if (f.tls_cert.empty() || f.tls_key.empty()) brenier::invalid("--tls-cert and --tls-key go together");
+    grpc::SslServerCredentialsOptions o(f.tls_client_ca.empty()
+                                           ? GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE
+                                           : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY);
+    o.pem_key_cert_pairs.push_back({read_file(f.tls_key, "TLS key"), read_file(f.tls_cert, "TLS certificate")});
+    if (!f.tls_client_ca.empty()) o.pem_root_certs = read_file(f.tls_client_ca, "client CA");
+    creds = grpc::SslServerCredentials(o);
+  } else if (!f.tls_client_ca.empty()) {
+    brenier::invalid("--tls-client-ca needs --tls-cert and --tls-key");
+  }
+
+  brenier::server::Store store(f.data);
+  brenier::server::ManagerOptions mo;
+  mo.workers = f.workers;
+  mo.queue = f.queue;
+  mo.max_upload_bytes = f.max_upload_mb << 20;
+  mo.max_vertices = f.max_vertices;
+  brenier::server::Manager manager(store, mo);
+  brenier::server::Service service(manager, std::move(auth));
+
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  int port = 0;
+  builder.AddListeningPort(f.listen, creds, &port);
+  builder.SetMaxReceiveMessageSize(16 << 20);  // chunks are 64 KiB; a map's weights may be larger
+  builder.RegisterService(&service);
+  std::unique_ptr<grpc::Server> server = builder.BuildAndStart();
+  if (!server || port == 0) brenier::invalid("cannot listen on " + f.listen);
+  server->GetHealthCheckService()->SetServingStatus(true);
+  const std::string host = f.listen.substr(0, f.listen.rfind(':'));
+  spdlog::info("brenierd listening on {}:{} (data {}, {} workers, queue {}, tokens {}, TLS {})", host, port, f.data,
+               manager.options().workers, f.queue, f.tokens.empty() ? "off" : "on", f.tls_cert.empty() ? "off" : "on");
+  if (!f.port_file.empty()) {
+    const std::string tmp = f.port_file + ".tmp";
+    std::ofstream(tmp) << port << "\n";
+    std::rename(tmp.c_str(), f.port_file.c_str());
+  }
+  manager.recover();
+
+  std::thread waiter([&] {
+    int sig = 0;
+    sigwait(&stop, &sig);
+    spdlog::info("signal {}: shutting down (grace {} s)", sig, f.grace);
+    server->GetHealthCheckService()->SetServingStatus(false);
+    manager.begin_shutdown();
+    manager.finish_shutdown(f.grace);
+    server->Shutdown(std::chrono::system_clock::now() + std::chrono::seconds(2));
+  });
+  server->Wait();
+  waiter.join();
+  spdlog::info("brenierd stopped");
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"brenierd: conformal maps, optimal-transport maps and shape distances as a gRPC service"};
+  Flags f;
+  app.set_config("--config", "", "read flags from a TOML/INI file (keys: the long flag names)");
+  app.add_option("--listen", f.listen, "HOST:PORT to listen on (port 0: any free port)");
+  app.add_option("--data", f.data, "data directory (SQLite metadata and blobs)");
+  app.add_option("--workers", f.workers, "worker threads (default: the number of cores)")->check(CLI::Range(0, 1024));
+  app.add_option("--queue", f.queue, "queued jobs at most before RESOURCE_EXHAUSTED")->check(CLI::Range(1, 1000000));
+  app.add_option("--max-upload-mb", f.max_upload_mb, "largest upload in MiB")->check(CLI::Range(1, 1 << 20));
+  app.add_option("--max-vertices", f.max_vertices, "largest mesh in vertices")->check(CLI::Range(3, 100'000'000));
+  app.add_option("--tokens", f.tokens, "file of 'TOKEN TENANT' lines: bearer tokens required");
+  app.add_option("--tls-cert", f.tls_cert, "PEM certificate chain (TLS)");
+  app.add_option("--tls-key", f.tls_key, "PEM private key (TLS)");
+  app.add_option("--tls-client-ca", f.tls_client_ca, "PEM CA: require client certificates signed by it");
+  app.add_option("--grace", f.grace, "seconds running jobs get to finish on SIGTERM")->check(CLI::Range(0.0, 86400.0));
+  app.add_option("--port-file", f.port_file, "write the port listened on to this file");
+  app.add_option("--log-level", f.log_level, "trace, debug, info, warn, error")
+      ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::CallForHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::ParseError& e) {
+    std::fprintf(stderr, "brenierd: usage: %s\n", e.what());
+    return 2;
+  }
+  try {
+    return serve(f);
+  } catch (const brenier::Error& e) {
+    std::fprintf(stderr, "brenierd: %s\n", e.what());
+    return e.code() == brenier::ErrorCode::kInternal ? 1 : 2;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "brenierd: internal error: %s\n", e.what());
+    return 1;
+  }
+}

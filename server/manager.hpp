@@ -1,0 +1,93 @@
+// What brenierd does, apart from the wire: uploads made into meshes, jobs accepted, run on
+// the pool through core/jobs (the same code as brenier-compute), their progress kept for
+// watchers, their state and results persisted. Throws brenier::Error; the handlers turn it
+// into a status in one place (status.hpp).
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include "brenier/v1/brenier.pb.h"
+#include "scheduler.hpp"
+#include "store.hpp"
+
+namespace brenier::server {
+
+struct ManagerOptions {
+  int workers = 0;           // 0: the number of cores
+  int queue = 64;            // queued jobs at most (RESOURCE_EXHAUSTED beyond)
+  int64_t max_upload_bytes = int64_t{512} << 20;
+  int64_t max_vertices = 5'000'000;
+  int max_matrix_meshes = 5000;
+};
+
+/// One job's progress as it happens: the events since the job was (re)started, the latest
+/// job record, and the flags the numerical loops check.
+struct LiveJob {
+  std::mutex mutex;
+  std::condition_variable changed;
+  pb::Job job;                   // latest, with stage and fraction
+  std::deque<pb::JobEvent> events;
+  uint64_t first_seq = 0;        // sequence number of events.front()
+  bool terminal = false;
+  std::atomic<bool> cancel{false};       // the client asked
+  std::atomic<bool> interrupted{false};  // the server is shutting down: requeue, not cancel
+  uint64_t end_seq() const { return first_seq + events.size(); }
+};
+
+class Manager {
+ public:
+  Manager(Store& store, const ManagerOptions& options);
+  ~Manager();
+
+  /// Requeues the jobs an earlier run left queued or running (a running one runs again).
+  void recover();
+
+  /// Turns a finished upload (the bytes in `temp`, already checked against the declared size
+  /// and SHA-256) into the tenant's mesh: parsed, validated (INVALID_ARGUMENT with the
+  /// validator's message), vertex limit (RESOURCE_EXHAUSTED), then stored.
+  pb::Mesh add_mesh(const std::string& tenant, const pb::UploadMeshRequest::Header& header, const std::string& temp);
+
+  pb::Job submit(const std::string& tenant, const pb::SubmitJobRequest& request);
+  pb::Job get(const std::string& tenant, const std::string& id);
+  pb::Job cancel(const std::string& tenant, const std::string& id);
+  /// The live state of a job of the tenant; null when it has finished (read the store).
+  /// NOT_FOUND for another tenant's or an unknown job.
+  std::shared_ptr<LiveJob> live(const std::string& tenant, const std::string& id, pb::Job& current);
+
+  /// Stop taking queued jobs; Submit and Upload answer UNAVAILABLE from now on.
+  void begin_shutdown();
+  bool shutting_down() const { return shutting_down_; }
+  /// Waits up to `grace_seconds` for the running jobs, then interrupts the rest (they stay
+  /// queued in the store and run again at the next start) and stops the workers.
+  void finish_shutdown(double grace_seconds);
+
+  Store& store() { return store_; }
+  const ManagerOptions& options() const { return options_; }
+
+ private:
+  void run(const std::string& id);
+  void publish(LiveJob& live, const pb::JobEvent& event);
+  void finish(const std::shared_ptr<LiveJob>& live, pb::Job job);
+
+  Store& store_;
+  ManagerOptions options_;
+  std::mutex mutex_;
+  std::map<std::string, std::shared_ptr<LiveJob>> live_;  // jobs queued or running
+  std::atomic<bool> shutting_down_{false};
+  std::mutex running_mutex_;
+  std::condition_variable running_changed_;
+  int running_ = 0;
+  std::unique_ptr<Scheduler> scheduler_;  // last: its workers use the members above
+};
+
+/// The event a job's state makes (the first one a watcher gets, and the terminal one).
+pb::JobEvent state_event(const pb::Job& job);
+bool is_terminal(pb::JobState s);
+
+}  // namespace brenier::server

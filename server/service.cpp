@@ -1,0 +1,217 @@
+#include "service.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <cctype>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+
+#include "common/error.hpp"
+#include "common/hash.hpp"
+#include "status.hpp"
+
+namespace brenier::server {
+namespace {
+
+constexpr size_t kChunk = 64 * 1024;
+
+int page_size(int requested) {
+  if (requested < 0) invalid("page_size must not be negative");
+  return requested == 0 ? 100 : std::min(requested, 1000);
+}
+
+bool is_sha256(const std::string& s) {
+  if (s.size() != 64) return false;
+  for (char c : s)
+    if (!std::isdigit(static_cast<unsigned char>(c)) && !(c >= 'a' && c <= 'f')) return false;
+  return true;
+}
+
+// Removes a temporary file unless it was made a blob.
+struct TempFile {
+  std::string path;
+  ~TempFile() {
+    std::error_code ec;
+    std::filesystem::remove(path, ec);
+  }
+};
+
+}  // namespace
+
+grpc::Status Service::UploadMesh(grpc::ServerContext* ctx, grpc::ServerReader<pb::UploadMeshRequest>* reader,
+                                 pb::Mesh* reply) {
+  return guarded([&] {
+    const std::string tenant = auth_.tenant(ctx);
+    if (manager_.shutting_down()) fail(ErrorCode::kUnavailable, "the server is shutting down");
+    pb::UploadMeshRequest msg;
+    if (!reader->Read(&msg)) invalid("the upload is empty: the first message must carry the header");
+    if (!msg.has_header()) invalid("the first message of an upload must carry the header (name, format, size, sha256)");
+    const pb::UploadMeshRequest::Header h = msg.header();
+    if (!is_sha256(h.sha256())) invalid("the header's sha256 must be 64 lower-case hex digits");
+    if (h.size_bytes() <= 0) invalid("the header's size_bytes must be positive");
+    if (h.name().size() > 256) invalid("the mesh name is longer than 256 characters");
+    const int64_t limit = manager_.options().max_upload_bytes;
+    if (h.size_bytes() > limit)
+      fail(ErrorCode::kResourceExhausted, "the upload is " + std::to_string(h.size_bytes()) +
+                                              " bytes; this server takes at most " + std::to_string(limit));
+    TempFile temp{manager_.store().temp_path()};
+    std::ofstream os(temp.path, std::ios::binary | std::ios::trunc);
+    if (!os) fail(ErrorCode::kInternal, "cannot open a temporary file");
+    Sha256 sha;
+    int64_t received = 0;
+    while (reader->Read(&msg)) {
+      if (msg.has_header()) invalid("an upload carries one header, first");
+      const std::string& c = msg.chunk();
+      if (c.size() > kChunk) invalid("a chunk of " + std::to_string(c.size()) + " bytes; chunks are at most 65536");
+      received += static_cast<int64_t>(c.size());
+      if (received > h.size_bytes())
+        invalid("more bytes than the declared " + std::to_string(h.size_bytes()));
+      sha.update(c);
+      if (!os.write(c.data(), static_cast<std::streamsize>(c.size()))) fail(ErrorCode::kInternal, "cannot write the upload");
+    }
+    if (ctx->IsCancelled()) fail(ErrorCode::kCancelled, "the client cancelled the upload");
+    if (!os.flush()) fail(ErrorCode::kInternal, "cannot write the upload");
+    os.close();
+    if (received != h.size_bytes())
+      invalid("truncated upload: " + std::to_string(received) + " of " + std::to_string(h.size_bytes()) + " bytes");
+    const std::string got = sha.hex();
+    if (got != h.sha256()) invalid("SHA-256 mismatch: the header says " + h.sha256() + ", the bytes hash to " + got);
+    *reply = manager_.add_mesh(tenant, h, temp.path);
+    spdlog::info("mesh {} '{}' uploaded by '{}': {} vertices", reply->id().substr(0, 12), reply->name(), tenant,
+                 reply->vertices());
+    return grpc::Status::OK;
+  });
+}
+
+grpc::Status Service::GetMesh(grpc::ServerContext* ctx, const pb::GetMeshRequest* req, pb::Mesh* reply) {
+  return guarded([&] {
+    auto m = manager_.store().get_mesh(auth_.tenant(ctx), req->id());
+    if (!m) fail(ErrorCode::kNotFound, "no mesh " + req->id());
+    *reply = *m;
+    return grpc::Status::OK;
+  });
+}
+
+grpc::Status Service::ListMeshes(grpc::ServerContext* ctx, const pb::ListMeshesRequest* req,
+                                 pb::ListMeshesResponse* reply) {
+  return guarded([&] {
+    std::string next;
+    for (auto& m : manager_.store().list_meshes(auth_.tenant(ctx), req->page_token(), page_size(req->page_size()), next))
+      *reply->add_meshes() = std::move(m);
+    reply->set_next_page_token(next);
+    return grpc::Status::OK;
+  });
+}
+
+grpc::Status Service::DeleteMesh(grpc::ServerContext* ctx, const pb::DeleteMeshRequest* req, pb::DeleteMeshResponse*) {
+  return guarded([&] {
+    if (!manager_.store().delete_mesh(auth_.tenant(ctx), req->id())) fail(ErrorCode::kNotFound, "no mesh " + req->id());
+    return grpc::Status::OK;
+  });
+}
+
+grpc::Status Service::SubmitJob(grpc::ServerContext* ctx, const pb::SubmitJobRequest* req, pb::Job* reply) {
+  return guarded([&] {
+    *reply = manager_.submit(auth_.tenant(ctx), *req);
+    return grpc::Status::OK;
+  });
+}
+
+grpc::Status Service::GetJob(grpc::ServerContext* ctx, const pb::GetJobRequest* req, pb::Job* reply) {
+  return guarded([&] {
+    *reply = manager_.get(auth_.tenant(ctx), req->id());
+    return grpc::Status::OK;
+  });
+}
+
+grpc::Status Service::ListJobs(grpc::ServerContext* ctx, const pb::ListJobsRequest* req, pb::ListJobsResponse* reply) {
+  return guarded([&] {
+    const std::string tenant = auth_.tenant(ctx);
+    std::string next;
+    for (auto& j : manager_.store().list_jobs(tenant, req->state(), req->page_token(), page_size(req->page_size()), next))
+      *reply->add_jobs() = is_terminal(j.state()) ? std::move(j) : manager_.get(tenant, j.id());
+    reply->set_next_page_token(next);
+    return grpc::Status::OK;
+  });
+}
+
+grpc::Status Service::CancelJob(grpc::ServerContext* ctx, const pb::CancelJobRequest* req, pb::Job* reply) {
+  return guarded([&] {
+    *reply = manager_.cancel(auth_.tenant(ctx), req->id());
+    return grpc::Status::OK;
+  });
+}
+
+grpc::Status Service::WatchJob(grpc::ServerContext* ctx, const pb::WatchJobRequest* req,
+                               grpc::ServerWriter<pb::JobEvent>* writer) {
+  return guarded([&] {
+    pb::Job current;
+    std::shared_ptr<LiveJob> l = manager_.live(auth_.tenant(ctx), req->id(), current);
+    if (!l) {
+      writer->Write(state_event(current));
+      return grpc::Status::OK;
+    }
+    uint64_t next = 0;
+    pb::JobEvent first;
+    {
+      std::lock_guard<std::mutex> lock(l->mutex);
+      first = state_event(l->job);
+      next = l->end_seq();
+    }
+    if (!writer->Write(first) || is_terminal(first.state())) return grpc::Status::OK;
+    std::vector<pb::JobEvent> batch;
+    for (;;) {
+      {
+        std::unique_lock<std::mutex> lock(l->mutex);
+        l->changed.wait_for(lock, std::chrono::milliseconds(200), [&] { return l->end_seq() > next; });
+        next = std::max(next, l->first_seq);  // a watcher that fell 4096 events behind skips ahead
+        for (; next < l->end_seq(); ++next) batch.push_back(l->events[next - l->first_seq]);
+      }
+      for (const pb::JobEvent& e : batch) {
+        if (!writer->Write(e)) return grpc::Status::OK;  // the client went away
+        if (is_terminal(e.state())) return grpc::Status::OK;
+      }
+      batch.clear();
+      if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "the watch was cancelled");
+      if (manager_.shutting_down() && l->interrupted)
+        fail(ErrorCode::kUnavailable, "the server is shutting down; the job runs again when it restarts");
+    }
+  });
+}
+
+grpc::Status Service::GetResult(grpc::ServerContext* ctx, const pb::GetResultRequest* req,
+                                grpc::ServerWriter<pb::ResultChunk>* writer) {
+  return guarded([&] {
+    const pb::Job job = manager_.get(auth_.tenant(ctx), req->id());
+    if (job.state() != pb::SUCCEEDED) {
+      std::string why = "job " + job.id() + " is " + pb::JobState_Name(job.state());
+      if (job.has_error()) why += ": " + job.error().message();
+      fail(ErrorCode::kFailedPrecondition, why + "; results come once it has succeeded");
+    }
+    const pb::Artifact* a = nullptr;
+    std::string names;
+    for (const pb::Artifact& x : job.result().artifacts()) {
+      names += (names.empty() ? "" : ", ") + x.name();
+      if (req->artifact().empty() ? a == nullptr : x.name() == req->artifact()) a = &x;
+    }
+    if (!a) fail(ErrorCode::kNotFound, "job " + job.id() + " has no artifact '" + req->artifact() + "' (it has " + names + ")");
+    std::ifstream in(manager_.store().blob_path(a->sha256()), std::ios::binary);
+    if (!in) fail(ErrorCode::kInternal, "the artifact's blob is missing");
+    pb::ResultChunk head;
+    *head.mutable_artifact() = *a;
+    if (!writer->Write(head)) return grpc::Status::OK;
+    std::string buf(kChunk, '\0');
+    while (in) {
+      in.read(buf.data(), static_cast<std::streamsize>(buf.size()));
+      const std::streamsize got = in.gcount();
+      if (got <= 0) break;
+      pb::ResultChunk c;
+      c.set_chunk(buf.data(), static_cast<size_t>(got));
+      if (!writer->Write(c)) return grpc::Status::OK;
+    }
+    return grpc::Status::OK;
+  });
+}
+
+}  // namespace brenier::server

@@ -1,0 +1,299 @@
+#include "store.hpp"
+
+#include <fcntl.h>
+#include <sqlite3.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include "common/error.hpp"
+#include "common/hash.hpp"
+
+namespace brenier::server {
+namespace fs = std::filesystem;
+
+namespace {
+
+// A prepared statement that finalizes itself; errors become Error(kInternal) naming SQLite's
+// message (a broken database is ours to fix, not the client's).
+class Stmt {
+ public:
+  Stmt(sqlite3* db, const char* sql) : db_(db) {
+    if (sqlite3_prepare_v2(db, sql, -1, &s_, nullptr) != SQLITE_OK) fail(ErrorCode::kInternal, sqlite3_errmsg(db));
+  }
+  ~Stmt() { sqlite3_finalize(s_); }
+  Stmt& text(int i, const std::string& v) {
+    sqlite3_bind_text(s_, i, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT);
+    return *this;
+  }
+  Stmt& blob(int i, const std::string& v) {
+    sqlite3_bind_blob(s_, i, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT);
+    return *this;
+  }
+  Stmt& integer(int i, int64_t v) {
+    sqlite3_bind_int64(s_, i, v);
+    return *this;
+  }
+  /// True while a row is there.
+  bool step() {
+    const int rc = sqlite3_step(s_);
+    if (rc == SQLITE_ROW) return true;
+    if (rc == SQLITE_DONE) return false;
+    fail(ErrorCode::kInternal, std::string("database: ") + sqlite3_errmsg(db_));
+  }
+  std::string column_blob(int i) {
+    const void* p = sqlite3_column_blob(s_, i);
+    return p ? std::string(static_cast<const char*>(p), static_cast<size_t>(sqlite3_column_bytes(s_, i))) : std::string();
+  }
+  std::string column_text(int i) {
+    const unsigned char* p = sqlite3_column_text(s_, i);
+    return p ? std::string(reinterpret_cast<const char*>(p)) : std::string();
+  }
+  int64_t column_int(int i) { return sqlite3_column_int64(s_, i); }
+
+ private:
+  sqlite3* db_;
+  sqlite3_stmt* s_ = nullptr;
+};
+
+template <class M>
+M parse(const std::string& bytes) {
+  M m;
+  if (!m.ParseFromString(bytes)) fail(ErrorCode::kInternal, "database: a stored record does not parse");
+  return m;
+}
+
+int64_t token_value(const std::string& token) {
+  if (token.empty()) return 0;
+  char* end = nullptr;
+  const long long v = std::strtoll(token.c_str(), &end, 10);
+  if (end == token.c_str() || *end != '\0' || v < 0) invalid("page_token '" + token + "' is not one this server gave");
+  return v;
+}
+
+void fsync_path(const std::string& path, bool directory) {
+  const int fd = ::open(path.c_str(), directory ? O_RDONLY | O_DIRECTORY : O_RDONLY);
+  if (fd < 0) return;
+  ::fsync(fd);
+  ::close(fd);
+}
+
+}  // namespace
+
+Store::Store(const std::string& dir) : dir_(dir) {
+  std::error_code ec;
+  fs::create_directories(dir + "/blobs", ec);
+  if (!ec) fs::create_directories(dir + "/tmp", ec);
+  if (ec) invalid("cannot create the data directory " + dir + ": " + ec.message());
+  for (const auto& e : fs::directory_iterator(dir + "/tmp", ec)) fs::remove_all(e.path(), ec);
+  if (sqlite3_open_v2((dir + "/brenier.db").c_str(), &db_, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_FULLMUTEX,
+                      nullptr) != SQLITE_OK) {
+    const std::string msg = db_ ? sqlite3_errmsg(db_) : "out of memory";
+    sqlite3_close(db_);
+    invalid("cannot open the database in " + dir + ": " + msg);
+  }
+  sqlite3_busy_timeout(db_, 5000);
+  exec("PRAGMA journal_mode=WAL");
+  exec("PRAGMA synchronous=NORMAL");
+  exec("CREATE TABLE IF NOT EXISTS meshes (seq INTEGER PRIMARY KEY AUTOINCREMENT, tenant TEXT NOT NULL, "
+       "id TEXT NOT NULL, record BLOB NOT NULL, UNIQUE(tenant, id))");
+  exec("CREATE TABLE IF NOT EXISTS jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT NOT NULL UNIQUE, "
+       "tenant TEXT NOT NULL, request_id TEXT NOT NULL, state INTEGER NOT NULL, record BLOB NOT NULL)");
+  exec("CREATE UNIQUE INDEX IF NOT EXISTS jobs_request ON jobs(tenant, request_id) WHERE request_id <> ''");
+  exec("CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state)");
+}
+
+Store::~Store() { sqlite3_close(db_); }
+
+void Store::exec(const char* sql) {
+  char* err = nullptr;
+  if (sqlite3_exec(db_, sql, nullptr, nullptr, &err) != SQLITE_OK) {
+    const std::string msg = err ? err : "unknown";
+    sqlite3_free(err);
+    fail(ErrorCode::kInternal, std::string("database: ") + msg);
+  }
+}
+
+std::string Store::temp_path() {
+  static std::atomic<uint64_t> counter{0};
+  static const uint64_t salt = std::random_device{}();
+  return dir_ + "/tmp/" + std::to_string(::getpid()) + "-" + std::to_string(salt % 100000) + "-" +
+         std::to_string(counter.fetch_add(1));
+}
+
+std::string Store::blob_path(const std::string& sha) const { return dir_ + "/blobs/" + sha.substr(0, 2) + "/" + sha; }
+
+bool Store::has_blob(const std::string& sha) const {
+  std::error_code ec;
+  return sha.size() == 64 && fs::exists(blob_path(sha), ec);
+}
+
+void Store::commit_blob(const std::string& temp, const std::string& sha) {
+  const std::string path = blob_path(sha);
+  std::error_code ec;
+  if (fs::exists(path, ec)) {
+    fs::remove(temp, ec);
+    return;
+  }
+  fs::create_directories(fs::path(path).parent_path(), ec);
+  fsync_path(temp, false);
+  fs::rename(temp, path, ec);
+  if (ec) fail(ErrorCode::kInternal, "cannot store a blob: " + ec.message());
+  fsync_path(fs::path(path).parent_path().string(), true);
+}
+
+std::string Store::put_blob(const std::string& bytes) {
+  const std::string sha = sha256_hex(bytes);
+  if (has_blob(sha)) return sha;
+  const std::string temp = temp_path();
+  {
+    std::ofstream os(temp, std::ios::binary | std::ios::trunc);
+    if (!os || !os.write(bytes.data(), static_cast<std::streamsize>(bytes.size())) || !os.flush())
+      fail(ErrorCode::kInternal, "cannot write a blob in " + dir_ + "/tmp");
+  }
+  commit_blob(temp, sha);
+  return sha;
+}
+
+pb::Mesh Store::put_mesh(const std::string& tenant, const pb::Mesh& mesh) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  Stmt(db_, "INSERT OR IGNORE INTO meshes (tenant, id, record) VALUES (?, ?, ?)")
+      .text(1, tenant)
+      .text(2, mesh.id())
+      .blob(3, mesh.SerializeAsString())
+      .step();
+  Stmt s(db_, "SELECT record FROM meshes WHERE tenant = ? AND id = ?");
+  s.text(1, tenant).text(2, mesh.id());
+  if (!s.step()) fail(ErrorCode::kInternal, "database: a mesh just stored is not there");
+  return parse<pb::Mesh>(s.column_blob(0));
+}
+
+std::optional<pb::Mesh> Store::get_mesh(const std::string& tenant, const std::string& id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  Stmt s(db_, "SELECT record FROM meshes WHERE tenant = ? AND id = ?");
+  s.text(1, tenant).text(2, id);
+  if (!s.step()) return std::nullopt;
+  return parse<pb::Mesh>(s.column_blob(0));
+}
+
+std::vector<pb::Mesh> Store::list_meshes(const std::string& tenant, const std::string& token, int limit,
+                                         std::string& next) {
+  const int64_t after = token_value(token);
+  std::lock_guard<std::mutex> lock(mutex_);
+  Stmt s(db_, "SELECT seq, record FROM meshes WHERE tenant = ? AND seq > ? ORDER BY seq LIMIT ?");
+  s.text(1, tenant).integer(2, after).integer(3, limit + 1);
+  std::vector<pb::Mesh> out;
+  next.clear();
+  bool more = false;
+  while (s.step()) {
+    if (static_cast<int>(out.size()) == limit) {
+      more = true;
+      break;
+    }
+    next = std::to_string(s.column_int(0));
+    out.push_back(parse<pb::Mesh>(s.column_blob(1)));
+  }
+  if (!more) next.clear();
+  return out;
+}
+
+bool Store::delete_mesh(const std::string& tenant, const std::string& id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  Stmt d(db_, "DELETE FROM meshes WHERE tenant = ? AND id = ?");
+  d.text(1, tenant).text(2, id).step();
+  if (sqlite3_changes(db_) == 0) return false;
+  Stmt s(db_, "SELECT 1 FROM meshes WHERE id = ? LIMIT 1");
+  s.text(1, id);
+  if (!s.step()) {
+    std::error_code ec;
+    fs::remove(blob_path(id), ec);
+  }
+  return true;
+}
+
+pb::Job Store::insert_job(const std::string& tenant, const pb::Job& job, bool& inserted) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!job.request_id().empty()) {
+    Stmt s(db_, "SELECT record FROM jobs WHERE tenant = ? AND request_id = ?");
+    s.text(1, tenant).text(2, job.request_id());
+    if (s.step()) {
+      inserted = false;
+      return parse<pb::Job>(s.column_blob(0));
+    }
+  }
+  Stmt(db_, "INSERT INTO jobs (id, tenant, request_id, state, record) VALUES (?, ?, ?, ?, ?)")
+      .text(1, job.id())
+      .text(2, tenant)
+      .text(3, job.request_id())
+      .integer(4, job.state())
+      .blob(5, job.SerializeAsString())
+      .step();
+  inserted = true;
+  return job;
+}
+
+std::optional<pb::Job> Store::get_job(const std::string& tenant, const std::string& id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  Stmt s(db_, "SELECT record FROM jobs WHERE tenant = ? AND id = ?");
+  s.text(1, tenant).text(2, id);
+  if (!s.step()) return std::nullopt;
+  return parse<pb::Job>(s.column_blob(0));
+}
+
+std::optional<pb::Job> Store::get_job_any(const std::string& id, std::string* tenant) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  Stmt s(db_, "SELECT record, tenant FROM jobs WHERE id = ?");
+  s.text(1, id);
+  if (!s.step()) return std::nullopt;
+  if (tenant) *tenant = s.column_text(1);
+  return parse<pb::Job>(s.column_blob(0));
+}
+
+std::vector<pb::Job> Store::list_jobs(const std::string& tenant, pb::JobState state, const std::string& token, int limit,
+                                      std::string& next) {
+  const int64_t after = token_value(token);
+  std::lock_guard<std::mutex> lock(mutex_);
+  Stmt s(db_, "SELECT seq, record FROM jobs WHERE tenant = ? AND seq > ? AND (? = 0 OR state = ?) ORDER BY seq LIMIT ?");
+  s.text(1, tenant).integer(2, after).integer(3, state).integer(4, state).integer(5, limit + 1);
+  std::vector<pb::Job> out;
+  next.clear();
+  bool more = false;
+  while (s.step()) {
+    if (static_cast<int>(out.size()) == limit) {
+      more = true;
+      break;
+    }
+    next = std::to_string(s.column_int(0));
+    out.push_back(parse<pb::Job>(s.column_blob(1)));
+  }
+  if (!more) next.clear();
+  return out;
+}
+
+void Store::update_job(const pb::Job& job) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  Stmt(db_, "UPDATE jobs SET state = ?, record = ? WHERE id = ?")
+      .integer(1, job.state())
+      .blob(2, job.SerializeAsString())
+      .text(3, job.id())
+      .step();
+}
+
+void Store::delete_job(const std::string& id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  Stmt(db_, "DELETE FROM jobs WHERE id = ?").text(1, id).step();
+}
+
+std::vector<std::string> Store::unfinished_jobs() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  Stmt s(db_, "SELECT id FROM jobs WHERE state IN (?, ?) ORDER BY seq");
+  s.integer(1, pb::QUEUED).integer(2, pb::RUNNING);
+  std::vector<std::string> out;
+  while (s.step()) out.push_back(s.column_text(0));
+  return out;
+}
+
+}  // namespace brenier::server

@@ -1,0 +1,76 @@
+// brenierd's persistence on embedded defaults: SQLite (WAL) for mesh and job metadata and a
+// content-addressed blob directory (write a temporary file, fsync, rename). A server killed
+// at any moment restarts with every blob whole or absent (a rename is atomic) and every
+// committed row intact (WAL survives the process; synchronous=NORMAL only risks the last
+// commits on a power cut, not on a crash).
+#pragma once
+
+#include <cstdint>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "brenier/v1/brenier.pb.h"
+
+struct sqlite3;
+
+namespace brenier::server {
+
+namespace pb = ::brenier::v1;
+
+class Store {
+ public:
+  /// Opens (creating) DIR/brenier.db, DIR/blobs and DIR/tmp; leftover temporary files of an
+  /// earlier run are removed. Throws Error(kInvalidArgument) when the directory is unusable.
+  explicit Store(const std::string& dir);
+  ~Store();
+  Store(const Store&) = delete;
+  Store& operator=(const Store&) = delete;
+
+  const std::string& dir() const { return dir_; }
+
+  // ---- blobs ----
+  /// A fresh path under DIR/tmp for a file about to become a blob.
+  std::string temp_path();
+  /// Makes the finished file at `temp` the blob `sha256` (fsync, then rename; a blob that is
+  /// already there is kept and `temp` removed).
+  void commit_blob(const std::string& temp, const std::string& sha256);
+  /// Writes `bytes` as a blob and returns its SHA-256.
+  std::string put_blob(const std::string& bytes);
+  std::string blob_path(const std::string& sha256) const;
+  bool has_blob(const std::string& sha256) const;
+
+  // ---- meshes (per tenant; one blob may back several tenants' rows) ----
+  /// Inserts the mesh, or returns the row the tenant already has for that id.
+  pb::Mesh put_mesh(const std::string& tenant, const pb::Mesh& mesh);
+  std::optional<pb::Mesh> get_mesh(const std::string& tenant, const std::string& id);
+  /// Up to `limit` meshes after the page token (empty: from the start); `next` gets the
+  /// token of the following page, empty at the end.
+  std::vector<pb::Mesh> list_meshes(const std::string& tenant, const std::string& token, int limit, std::string& next);
+  /// Removes the tenant's row; the blob too when no row refers to it. False when absent.
+  bool delete_mesh(const std::string& tenant, const std::string& id);
+
+  // ---- jobs ----
+  /// Inserts a new job (its id, request_id and spec set), unless the tenant already has a job
+  /// with that non-empty request_id: then that job is returned and `inserted` is false.
+  pb::Job insert_job(const std::string& tenant, const pb::Job& job, bool& inserted);
+  std::optional<pb::Job> get_job(const std::string& tenant, const std::string& id);
+  /// The job whatever its tenant (the server's own use), with its tenant.
+  std::optional<pb::Job> get_job_any(const std::string& id, std::string* tenant = nullptr);
+  std::vector<pb::Job> list_jobs(const std::string& tenant, pb::JobState state, const std::string& token, int limit,
+                                 std::string& next);
+  void update_job(const pb::Job& job);
+  /// Removes a job row (a submission the full queue refused).
+  void delete_job(const std::string& id);
+  /// Queued and running jobs of every tenant, oldest first.
+  std::vector<std::string> unfinished_jobs();
+
+ private:
+  void exec(const char* sql);
+  std::string dir_;
+  sqlite3* db_ = nullptr;
+  std::mutex mutex_;
+};
+
+}  // namespace brenier::server
