@@ -54,10 +54,12 @@ nlohmann::json job_json(const pb::Job& j) {
   return out;
 }
 
-// A live progress line on stderr when it is a terminal, a line per stage otherwise.
+// A live progress bar on stderr when it is a terminal; elsewhere a line per stage with
+// --progress, nothing otherwise (so that an error stays one line).
+bool g_progress_lines = false;
 std::function<void(const pb::JobEvent&)> progress_printer(bool quiet) {
-  if (quiet) return {};
   const bool tty = isatty(STDERR_FILENO);
+  if (quiet || (!tty && !g_progress_lines)) return {};
   auto last_stage = std::make_shared<std::string>();
   return [tty, last_stage](const pb::JobEvent& e) {
     if (tty) {
@@ -117,6 +119,7 @@ int main(int argc, char** argv) {
   app.add_option("--tls-cert", g.options.tls_cert_file, "client certificate (PEM) for servers that require one");
   app.add_option("--tls-key", g.options.tls_key_file, "client key (PEM)");
   app.add_flag("--json", g.json, "machine-readable output");
+  app.add_flag("--progress", g_progress_lines, "report each stage on stderr even when it is not a terminal");
 
   std::function<int(Client&)> action;
 

@@ -19,6 +19,9 @@ PACKAGES=(
   python3
   # Tests: POT's exact EMD, the independent check of our Wasserstein distances.
   python3-numpy python3-pot
+  # Service tests: a Python client generated from our proto (protoc's grpc python plugin),
+  # and openssl to make the TLS test's certificates.
+  python3-grpcio python3-protobuf openssl
 )
 
 missing=()

@@ -11,6 +11,8 @@
 #include <cstdlib>
 #include <fstream>
 #include <thread>
+#include <cerrno>
+#include <unistd.h>
 
 #include "auth.hpp"
 #include "common/error.hpp"
@@ -25,6 +27,34 @@ std::string read_file(const std::string& path, const char* what) {
   return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
+// SIGTERM and SIGINT write their number into a pipe that one thread reads (a self-pipe:
+// libraries start threads before main, OpenBLAS among them, so the signals cannot be
+// blocked everywhere for sigwait; a handler may run on any thread, and write() is
+// async-signal-safe).
+int stop_pipe[2] = {-1, -1};
+
+void on_stop_signal(int sig) {
+  const char c = static_cast<char>(sig);
+  [[maybe_unused]] const ssize_t n = ::write(stop_pipe[1], &c, 1);
+}
+
+void install_stop_handlers() {
+  if (::pipe(stop_pipe) != 0) brenier::fail(brenier::ErrorCode::kInternal, "cannot create a pipe");
+  struct sigaction sa {};
+  sa.sa_handler = on_stop_signal;
+  sigemptyset(&sa.sa_mask);
+  sa.sa_flags = SA_RESTART;
+  sigaction(SIGTERM, &sa, nullptr);
+  sigaction(SIGINT, &sa, nullptr);
+}
+
+int wait_stop_signal() {
+  char c = 0;
+  while (::read(stop_pipe[0], &c, 1) < 0 && errno == EINTR) {
+  }
+  return c;
+}
+
 struct Flags {
   std::string listen = "127.0.0.1:50051";
   std::string data = "brenier-data";
@@ -37,12 +67,6 @@ struct Flags {
 
 int serve(const Flags& f) {
   spdlog::set_level(spdlog::level::from_str(f.log_level));
-  // Block the stop signals in every thread; one thread waits for them.
-  sigset_t stop;
-  sigemptyset(&stop);
-  sigaddset(&stop, SIGTERM);
-  sigaddset(&stop, SIGINT);
-  pthread_sigmask(SIG_BLOCK, &stop, nullptr);
   // OpenMP threads of concurrent jobs wait passively instead of spinning on the cores.
   setenv("OMP_WAIT_POLICY", "passive", 0);
 
@@ -90,8 +114,7 @@ int serve(const Flags& f) {
   manager.recover();
 
   std::thread waiter([&] {
-    int sig = 0;
-    sigwait(&stop, &sig);
+    const int sig = wait_stop_signal();
     spdlog::info("signal {}: shutting down (grace {} s)", sig, f.grace);
     server->GetHealthCheckService()->SetServingStatus(false);
     manager.begin_shutdown();
@@ -107,6 +130,7 @@ int serve(const Flags& f) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  install_stop_handlers();
   CLI::App app{"brenierd: conformal maps, optimal-transport maps and shape distances as a gRPC service"};
   Flags f;
   app.set_config("--config", "", "read flags from a TOML/INI file (keys: the long flag names)");

@@ -166,10 +166,12 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
   }
   out.positions = ap ? ap->positions : map.positions;
   const double t_map = seconds_since(t1);
-  if (!map.converged)
-    fail(ErrorCode::kNotConverged, what + ": the conformal map did not converge: max |K - Kbar| = " +
-                                       std::to_string(map.max_curvature_error) + " after " +
-                                       std::to_string(map.newton_iterations) + " Newton iterations");
+  if (!map.converged) {
+    char buf[200];
+    std::snprintf(buf, sizeof buf, ": the conformal map did not converge: max |K - Kbar| = %.3e rad after %d Newton iterations",
+                  map.max_curvature_error, map.newton_iterations);
+    fail(ErrorCode::kNotConverged, what + buf);
+  }
   if (progress && !progress(Progress{"quality", 0.96, 0, 0})) fail(ErrorCode::kCancelled, "cancelled");
 
   const quality::MapQuality q =

@@ -1,0 +1,514 @@
+// brenierd end to end: real server processes on loopback (ephemeral ports), the C++ client
+// library and raw stubs. The answers must be those of the engine run in-process (the same
+// core/jobs code), and no input may take the server down.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <cmath>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <sstream>
+#include <thread>
+
+#include "distance/matrix.hpp"
+#include "jobs/jobs.hpp"
+#include "mesh/io.hpp"
+#include "mesh/shapes.hpp"
+#include "server_process.hpp"
+
+namespace brenier::test {
+namespace {
+
+namespace pb = ::brenier::v1;
+using client::Client;
+using Clock = std::chrono::steady_clock;
+
+std::string off_bytes(const mesh::TriMesh& m) { return mesh::write_mesh_string(m, mesh::Format::kOff); }
+
+// Small meshes with known classes: a hemisphere and a bumped planar disk (disks), an
+// icosphere (sphere), a torus (neither).
+const std::string& hemisphere() {
+  static const std::string s = off_bytes(mesh::make_hemisphere(10));
+  return s;
+}
+const std::string& bumped_disk() {
+  static const std::string s = [] {
+    mesh::TriMesh m = mesh::make_disk(10);
+    for (int v = 0; v < m.num_vertices(); ++v) m.V(v, 2) = 0.3 * std::exp(-4 * m.V.row(v).head<2>().squaredNorm());
+    return off_bytes(m);
+  }();
+  return s;
+}
+const std::string& icosphere() {
+  static const std::string s = off_bytes(mesh::make_icosphere(2));
+  return s;
+}
+// Large enough that its area-preserving map runs for seconds (for cancel and kill -9).
+const std::string& big_hemisphere() {
+  static const std::string s = off_bytes(mesh::make_hemisphere(130));
+  return s;
+}
+
+mesh::CleanMesh clean_of(const std::string& bytes) {
+  return mesh::clean(mesh::read_soup(bytes, mesh::Format::kOff));
+}
+
+pb::SubmitJobRequest map_spec(const std::string& id, pb::Domain d, pb::MapMethod m) {
+  pb::SubmitJobRequest r;
+  r.mutable_map()->set_mesh(id);
+  r.mutable_map()->set_domain(d);
+  r.mutable_map()->set_method(m);
+  return r;
+}
+
+grpc::StatusCode code_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const client::Error& e) {
+    return e.code();
+  }
+  return grpc::StatusCode::OK;
+}
+
+bool finished(pb::JobState s) { return s == pb::SUCCEEDED || s == pb::FAILED || s == pb::CANCELLED; }
+
+// Waits until the job is RUNNING in `stage` (or finished).
+pb::Job wait_for_stage(Client& c, const std::string& id, const std::string& stage) {
+  for (int k = 0; k < 3000; ++k) {
+    pb::Job j = c.get(id);
+    if ((j.state() == pb::RUNNING && j.stage() == stage) || finished(j.state())) return j;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return c.get(id);
+}
+
+
+// ---- round trips -------------------------------------------------------------------------
+
+TEST(Service, MapRoundTripsGiveTheEnginesAnswer) {
+  ServerProcess server(temp_dir("svc-map"));
+  Client c = server.client();
+  EXPECT_EQ(server.health(), 1);
+  const pb::Mesh m = c.upload_bytes(hemisphere(), "hemisphere.off");
+  EXPECT_EQ(m.id(), client::sha256_hex(hemisphere()));
+  EXPECT_EQ(m.topology_class(), pb::TOPOLOGICAL_DISK);
+  EXPECT_EQ(m.vertices(), clean_of(hemisphere()).mesh.num_vertices());
+  EXPECT_EQ(c.get_mesh(m.id()).name(), "hemisphere.off");
+  // The same bytes again are the same mesh.
+  EXPECT_EQ(c.upload_bytes(hemisphere(), "again.off").id(), m.id());
+  EXPECT_EQ(c.list_meshes().size(), 1u);
+
+  for (pb::MapMethod method : {pb::CONFORMAL, pb::AREA_PRESERVING}) {
+    pb::Job j = c.submit(map_spec(m.id(), pb::DISK, method));
+    EXPECT_TRUE(j.state() == pb::QUEUED || j.state() == pb::RUNNING);
+    int events = 0;
+    bool saw_iteration = false;
+    pb::JobEvent last;
+    j = c.watch(j.id(), [&](const pb::JobEvent& e) {
+      ++events;
+      saw_iteration |= e.iteration() > 0 && e.residual() > 0;
+      last = e;
+    });
+    ASSERT_EQ(j.state(), pb::SUCCEEDED) << j.error().message();
+    EXPECT_EQ(last.state(), pb::SUCCEEDED);
+    EXPECT_TRUE(saw_iteration) << events << " events";
+    pb::Artifact a;
+    const std::string obj = c.fetch(j.id(), "", &a);
+    EXPECT_EQ(a.name(), "mesh");
+    const auto report = nlohmann::json::parse(c.fetch(j.id(), "report"));
+    EXPECT_EQ(report["quality"]["flipped_faces"], 0);
+    // The engine in-process on the same bytes gives the same file, bit for bit.
+    jobs::MapRequest r;
+    r.method = method == pb::AREA_PRESERVING ? "area-preserving" : "conformal";
+    const jobs::MapOutcome local = jobs::run_map(clean_of(hemisphere()), "hemisphere", r);
+    EXPECT_EQ(obj, jobs::map_mesh_bytes(local, mesh::Format::kObj)) << r.method;
+  }
+  // The sphere, as PLY.
+  const pb::Mesh s = c.upload_bytes(icosphere(), "ico.off");
+  EXPECT_EQ(s.topology_class(), pb::TOPOLOGICAL_SPHERE);
+  pb::SubmitJobRequest r = map_spec(s.id(), pb::SPHERE, pb::CONFORMAL);
+  r.mutable_map()->set_output_format("ply");
+  const pb::Job j = c.watch(c.submit(r).id());
+  ASSERT_EQ(j.state(), pb::SUCCEEDED) << j.error().message();
+  const std::string ply = c.fetch(j.id());
+  const mesh::PolygonSoup soup = mesh::read_soup(ply, mesh::Format::kPly);
+  for (const auto& p : soup.positions) EXPECT_NEAR(p.norm(), 1.0, 1e-9);
+}
+
+TEST(Service, DistanceAndMatrixRoundTripsGiveTheEnginesAnswer) {
+  ServerProcess server(temp_dir("svc-dist"));
+  Client c = server.client();
+  const std::string a = c.upload_bytes(hemisphere(), "hemi").id();
+  const std::string b = c.upload_bytes(bumped_disk(), "bump").id();
+  const std::string d3 = c.upload_bytes(off_bytes(mesh::make_hemisphere(7)), "hemi7").id();
+
+  pb::SubmitJobRequest r;
+  r.mutable_distance()->set_a(a);
+  r.mutable_distance()->set_b(b);
+  const pb::Job j = c.watch(c.submit(r).id());
+  ASSERT_EQ(j.state(), pb::SUCCEEDED) << j.error().message();
+  jobs::ShapeRequest sr;
+  const auto ia = jobs::shape_input(clean_of(hemisphere()), "hemi", "hemi", sr);
+  const auto ib = jobs::shape_input(clean_of(bumped_disk()), "bump", "bump", sr);
+  const jobs::DistanceOutcome local = jobs::run_distance(ia, ib, sr, 2);
+  EXPECT_EQ(j.result().distance(), local.result.distance);
+  EXPECT_GT(j.result().distance(), 0.0);
+  const auto report = nlohmann::json::parse(c.fetch(j.id()));
+  EXPECT_EQ(report["distance"].get<double>(), j.result().distance());
+
+  // A matrix (both methods): symmetric, zero diagonal, names, and the engine's values.
+  for (pb::DistanceMethod method : {pb::OMT_LINEAR, pb::WASSERSTEIN}) {
+    pb::SubmitJobRequest mr;
+    for (const std::string& id : {a, b, d3}) mr.mutable_matrix()->add_meshes(id);
+    mr.mutable_matrix()->set_method(method);
+    int tile_events = 0;
+    const pb::Job mj = c.watch(c.submit(mr).id(), [&](const pb::JobEvent& e) { tile_events += e.stage() == "pairs"; });
+    ASSERT_EQ(mj.state(), pb::SUCCEEDED) << mj.error().message();
+    EXPECT_TRUE(mj.result().converged());
+    EXPECT_GE(tile_events, 1);
+    std::istringstream csv(c.fetch(mj.id(), "matrix"));
+    std::string header;
+    std::getline(csv, header);
+    EXPECT_EQ(header, "name,hemi,bump,hemi7");
+    std::vector<distance::ShapeInput> in = {ia, ib, jobs::shape_input(clean_of(off_bytes(mesh::make_hemisphere(7))), "hemi7", "hemi7", sr)};
+    distance::MatrixOptions mo;
+    mo.method = method == pb::OMT_LINEAR ? distance::Method::kOmtLinear : distance::Method::kWasserstein;
+    for (auto& s : in) s.options = sr.shape_options();
+    const Eigen::MatrixXd expect = distance::assemble({distance::compute_tile(in, mo)});
+    for (int i = 0; i < 3; ++i) {
+      std::string line, name;
+      std::getline(csv, line);
+      std::istringstream row(line);
+      std::getline(row, name, ',');
+      for (int k = 0; k < 3; ++k) {
+        std::string cell;
+        std::getline(row, cell, ',');
+        EXPECT_EQ(std::stod(cell), expect(i, k)) << i << "," << k;
+      }
+    }
+    const std::string npy = c.fetch(mj.id(), "matrix.npy");
+    EXPECT_EQ(npy.substr(1, 5), "NUMPY");
+  }
+}
+
+TEST(Service, ResubmittingWithTheSameRequestIdReturnsTheSameJob) {
+  ServerProcess server(temp_dir("svc-idem"));
+  Client c = server.client();
+  const std::string id = c.upload_bytes(hemisphere(), "hemi").id();
+  pb::SubmitJobRequest r = map_spec(id, pb::DISK, pb::CONFORMAL);
+  r.set_request_id("my-request-1");
+  const pb::Job first = c.submit(r);
+  const pb::Job second = c.submit(r);
+  EXPECT_EQ(first.id(), second.id());
+  c.watch(first.id());
+  EXPECT_EQ(c.submit(r).id(), first.id());  // after it finished too
+  EXPECT_EQ(c.list_jobs().size(), 1u);
+  // The same key for another spec is refused.
+  pb::SubmitJobRequest other = map_spec(id, pb::DISK, pb::AREA_PRESERVING);
+  other.set_request_id("my-request-1");
+  EXPECT_EQ(code_of([&] { c.submit(other); }), grpc::StatusCode::INVALID_ARGUMENT);
+}
+
+TEST(Service, ThirtyTwoConcurrentClients) {
+  ServerProcess server(temp_dir("svc-32"), {"--queue", "256"});
+  std::atomic<int> ok{0};
+  std::vector<std::string> failures(32);
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 32; ++t)
+    threads.emplace_back([&, t] {
+      try {
+        Client c = server.client();
+        // Each its own mesh (a disk of its own size), so uploads and jobs differ.
+        const std::string bytes = off_bytes(mesh::make_disk(4 + t % 8));
+        const pb::Mesh m = c.upload_bytes(bytes, "disk" + std::to_string(t));
+        const pb::Job j = c.watch(c.submit(map_spec(m.id(), pb::DISK, pb::CONFORMAL)).id());
+        if (j.state() != pb::SUCCEEDED) throw std::runtime_error(j.error().message());
+        const std::string obj = c.fetch(j.id());
+        const jobs::MapOutcome local = jobs::run_map(clean_of(bytes), "d", {});
+        if (obj != jobs::map_mesh_bytes(local, mesh::Format::kObj)) throw std::runtime_error("another answer");
+        ++ok;
+      } catch (const std::exception& e) {
+        failures[t] = e.what();
+      }
+    });
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(ok.load(), 32);
+  for (const auto& f : failures) EXPECT_EQ(f, "");
+  EXPECT_EQ(server.client().list_jobs().size(), 32u);
+}
+
+// ---- cancellation, queue, errors ---------------------------------------------------------
+
+TEST(Service, CancellingARunningAreaPreservingJobEndsItWithinOneSecond) {
+  ServerProcess server(temp_dir("svc-cancel"));
+  Client c = server.client();
+  const std::string id = c.upload_bytes(big_hemisphere(), "big").id();
+  const pb::Job j = c.submit(map_spec(id, pb::DISK, pb::AREA_PRESERVING));
+  std::atomic<int64_t> ended_ns{0};
+  std::thread watcher([&] {
+    Client w = server.client();
+    w.watch(j.id(), [&](const pb::JobEvent& e) {
+      if (finished(e.state())) ended_ns = Clock::now().time_since_epoch().count();
+    });
+  });
+  ASSERT_EQ(wait_for_stage(c, j.id(), "omt").stage(), "omt");
+  const auto t0 = Clock::now();
+  c.cancel(j.id());
+  watcher.join();
+  const double seconds = std::chrono::duration<double>(Clock::time_point(Clock::duration(ended_ns.load())) - t0).count();
+  EXPECT_LT(seconds, 1.0);
+  const pb::Job done = c.get(j.id());
+  EXPECT_EQ(done.state(), pb::CANCELLED);
+  EXPECT_EQ(code_of([&] { c.fetch(j.id()); }), grpc::StatusCode::FAILED_PRECONDITION);
+  // Cancelling a finished job changes nothing.
+  EXPECT_EQ(c.cancel(j.id()).state(), pb::CANCELLED);
+}
+
+TEST(Service, FullQueueUnfinishedResultsAndBadSpecsGetTheirStatus) {
+  ServerProcess server(temp_dir("svc-queue"), {"--workers", "1", "--queue", "1"});
+  Client c = server.client();
+  const std::string big = c.upload_bytes(big_hemisphere(), "big").id();
+  const std::string small = c.upload_bytes(hemisphere(), "small").id();
+  const std::string ico = c.upload_bytes(icosphere(), "ico").id();
+  const pb::Job running = c.submit(map_spec(big, pb::DISK, pb::AREA_PRESERVING));
+  wait_for_stage(c, running.id(), "conformal");
+  const pb::Job queued = c.submit(map_spec(small, pb::DISK, pb::CONFORMAL));
+  EXPECT_EQ(code_of([&] { c.submit(map_spec(small, pb::DISK, pb::CONFORMAL)); }),
+            grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_EQ(code_of([&] { c.fetch(running.id()); }), grpc::StatusCode::FAILED_PRECONDITION);
+  // A queued job cancelled never runs.
+  EXPECT_EQ(c.cancel(queued.id()).state(), pb::CANCELLED);
+  c.cancel(running.id());
+  // Specs that cannot run.
+  EXPECT_EQ(code_of([&] { c.submit(map_spec(std::string(64, 'a'), pb::DISK, pb::CONFORMAL)); }),
+            grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ(code_of([&] { c.submit(map_spec(ico, pb::DISK, pb::CONFORMAL)); }), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(code_of([&] { c.submit(map_spec(small, pb::SPHERE, pb::CONFORMAL)); }), grpc::StatusCode::INVALID_ARGUMENT);
+  pb::SubmitJobRequest t = map_spec(small, pb::DISK, pb::CONFORMAL);
+  t.mutable_map()->set_t(0.5);
+  EXPECT_EQ(code_of([&] { c.submit(t); }), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(code_of([&] { c.submit(pb::SubmitJobRequest()); }), grpc::StatusCode::INVALID_ARGUMENT);
+  pb::SubmitJobRequest one;
+  one.mutable_matrix()->add_meshes(small);
+  EXPECT_EQ(code_of([&] { c.submit(one); }), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(code_of([&] { c.get("nope"); }), grpc::StatusCode::NOT_FOUND);
+  // Weights of the wrong length fail the job with the reason, not the server.
+  const std::string small2 = small;
+  c.watch(running.id());
+  pb::SubmitJobRequest w = map_spec(small2, pb::DISK, pb::AREA_PRESERVING);
+  w.mutable_map()->add_weights(1.0);
+  const pb::Job wj = c.watch(c.submit(w).id());
+  EXPECT_EQ(wj.state(), pb::FAILED);
+  EXPECT_EQ(wj.error().code(), static_cast<int>(grpc::StatusCode::INVALID_ARGUMENT));
+  EXPECT_NE(wj.error().message().find("weights"), std::string::npos) << wj.error().message();
+  EXPECT_EQ(server.health(), 1);
+}
+
+// Raw uploads that break the protocol each get their status, and the server stays healthy.
+TEST(Service, BadUploadsGetTheRightStatusAndTheServerStaysHealthy) {
+  ServerProcess server(temp_dir("svc-upload"), {"--max-upload-mb", "1", "--max-vertices", "1000"});
+  Client c = server.client();
+  auto raw = [&](const pb::UploadMeshRequest::Header& h, const std::vector<std::string>& chunks, bool header = true) {
+    grpc::ClientContext ctx;
+    pb::Mesh reply;
+    auto w = c.stub().UploadMesh(&ctx, &reply);
+    pb::UploadMeshRequest m;
+    if (header) {
+      *m.mutable_header() = h;
+      w->Write(m);
+    }
+    for (const auto& ch : chunks) {
+      pb::UploadMeshRequest x;
+      x.set_chunk(ch);
+      if (!w->Write(x)) break;
+    }
+    w->WritesDone();
+    const grpc::Status s = w->Finish();
+    return std::make_pair(s.error_code(), s.error_message());
+  };
+  const std::string& good = hemisphere();
+  pb::UploadMeshRequest::Header h;
+  h.set_name("h.off");
+  h.set_size_bytes(static_cast<int64_t>(good.size()));
+  h.set_sha256(client::sha256_hex(good));
+
+  auto [c1, m1] = raw(h, {good.substr(0, good.size() / 2)});  // truncated
+  EXPECT_EQ(c1, grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(m1.find("truncated"), std::string::npos) << m1;
+  pb::UploadMeshRequest::Header wrong = h;
+  wrong.set_sha256(std::string(64, '0'));
+  auto [c2, m2] = raw(wrong, {good});  // wrong SHA-256
+  EXPECT_EQ(c2, grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(m2.find("SHA-256"), std::string::npos) << m2;
+  const std::string garbage = "OFF\n3 1 0\n0 0 0\n1 0 nan-and-junk\x01\x02";
+  pb::UploadMeshRequest::Header g = h;
+  g.set_size_bytes(static_cast<int64_t>(garbage.size()));
+  g.set_sha256(client::sha256_hex(garbage));
+  auto [c3, m3] = raw(g, {garbage});  // garbage bytes
+  EXPECT_EQ(c3, grpc::StatusCode::INVALID_ARGUMENT) << m3;
+  pb::UploadMeshRequest::Header big = h;
+  big.set_size_bytes(2 << 20);
+  auto [c4, m4] = raw(big, {});  // over --max-upload-mb
+  EXPECT_EQ(c4, grpc::StatusCode::RESOURCE_EXHAUSTED) << m4;
+  auto [c5, m5] = raw(h, {std::string(70000, 'x')});  // a chunk over 64 KiB
+  EXPECT_EQ(c5, grpc::StatusCode::INVALID_ARGUMENT) << m5;
+  auto [c6, m6] = raw(h, {good}, false);  // no header
+  EXPECT_EQ(c6, grpc::StatusCode::INVALID_ARGUMENT) << m6;
+  // Over the vertex limit (a valid mesh of 1,141 vertices).
+  const std::string many = off_bytes(mesh::make_disk(19));
+  EXPECT_EQ(code_of([&] { c.upload_bytes(many, "many.off"); }), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  // An invalid mesh names its problem (a torus is valid; a bow-tie of two triangles is not).
+  const std::string bowtie = "OFF\n5 2 0\n0 0 0\n1 0 0\n0 1 0\n-1 0 0\n0 -1 0\n3 0 1 2\n3 0 3 4\n";
+  try {
+    c.upload_bytes(bowtie, "bowtie.off");
+    ADD_FAILURE() << "a non-manifold mesh was accepted";
+  } catch (const client::Error& e) {
+    EXPECT_EQ(e.code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_NE(std::string(e.what()).find("vertex 0 joins 2 separate fans"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(server.health(), 1);
+  EXPECT_TRUE(c.list_meshes().empty());  // nothing half-stored
+  EXPECT_EQ(c.upload_bytes(good, "h.off").vertices(), clean_of(good).mesh.num_vertices());
+  EXPECT_TRUE(server.alive());
+}
+
+// ---- persistence -------------------------------------------------------------------------
+
+TEST(Service, KillNineMidWorkThenARestartLosesNothing) {
+  const std::string data = temp_dir("svc-kill");
+  ServerProcess server(data, {"--workers", "1"});
+  std::string small, big, done_id;
+  std::vector<std::string> jobs;
+  {
+    Client c = server.client();
+    small = c.upload_bytes(hemisphere(), "small").id();
+    big = c.upload_bytes(big_hemisphere(), "big").id();
+    done_id = c.watch(c.submit(map_spec(small, pb::DISK, pb::CONFORMAL)).id()).id();
+    ASSERT_EQ(c.get(done_id).state(), pb::SUCCEEDED);
+    jobs.push_back(c.submit(map_spec(big, pb::DISK, pb::AREA_PRESERVING)).id());
+    jobs.push_back(c.submit(map_spec(small, pb::DISK, pb::AREA_PRESERVING)).id());
+    jobs.push_back(c.submit(map_spec(small, pb::DISK, pb::CONFORMAL)).id());
+    ASSERT_EQ(wait_for_stage(c, jobs[0], "omt").state(), pb::RUNNING);
+  }
+  const std::string done_result = server.client().fetch(done_id);
+  server.kill9();
+  server.start({"--workers", "1"});
+  Client c = server.client();
+  EXPECT_EQ(c.get_mesh(small).vertices(), clean_of(hemisphere()).mesh.num_vertices());
+  EXPECT_EQ(c.get_mesh(big).vertices(), clean_of(big_hemisphere()).mesh.num_vertices());
+  EXPECT_EQ(c.fetch(done_id), done_result);
+  for (const std::string& id : jobs) {
+    const pb::Job j = c.watch(id);
+    EXPECT_EQ(j.state(), pb::SUCCEEDED) << id << ": " << j.error().message();
+  }
+  EXPECT_EQ(c.get(jobs[0]).attempts(), 2);  // the running one ran again
+  EXPECT_EQ(c.get(jobs[2]).attempts(), 1);
+}
+
+TEST(Service, SigtermAfterTheGracePeriodRequeuesTheRunningJob) {
+  const std::string data = temp_dir("svc-term");
+  ServerProcess server(data, {"--workers", "1", "--grace", "0.2"});
+  Client c = server.client();
+  const std::string big = c.upload_bytes(big_hemisphere(), "big").id();
+  const std::string id = c.submit(map_spec(big, pb::DISK, pb::AREA_PRESERVING)).id();
+  wait_for_stage(c, id, "omt");
+  const auto t0 = Clock::now();
+  EXPECT_EQ(server.stop(), 0);
+  EXPECT_LT(std::chrono::duration<double>(Clock::now() - t0).count(), 5.0);
+  server.start({"--workers", "1"});
+  Client c2 = server.client();
+  const pb::Job j = c2.watch(id);
+  EXPECT_EQ(j.state(), pb::SUCCEEDED) << j.error().message();
+  EXPECT_EQ(j.attempts(), 2);
+}
+
+// ---- security ----------------------------------------------------------------------------
+
+TEST(Service, TenantsSeeOnlyTheirOwnMeshesAndJobs) {
+  const std::string data = temp_dir("svc-tenants");
+  const std::string tokens = data + "-tokens.txt";
+  std::ofstream(tokens) << "# token tenant\nalice-token-0123456789 alice\nbob-token-0123456789abc bob\n";
+  ServerProcess server(data, {"--tokens", tokens});
+  Client alice = server.client("alice-token-0123456789"), bob = server.client("bob-token-0123456789abc");
+  const std::string m = alice.upload_bytes(hemisphere(), "hemi").id();
+  const pb::Job j = alice.watch(alice.submit(map_spec(m, pb::DISK, pb::CONFORMAL)).id());
+  ASSERT_EQ(j.state(), pb::SUCCEEDED);
+  EXPECT_EQ(code_of([&] { bob.get_mesh(m); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ(code_of([&] { bob.get(j.id()); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ(code_of([&] { bob.cancel(j.id()); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ(code_of([&] { bob.fetch(j.id()); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ(code_of([&] { bob.watch(j.id()); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ(code_of([&] { bob.delete_mesh(m); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ(code_of([&] { bob.submit(map_spec(m, pb::DISK, pb::CONFORMAL)); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_TRUE(bob.list_meshes().empty());
+  EXPECT_TRUE(bob.list_jobs().empty());
+  // Bob uploading the same bytes gets his own record; deleting it leaves Alice's.
+  EXPECT_EQ(bob.upload_bytes(hemisphere(), "mine").id(), m);
+  bob.delete_mesh(m);
+  EXPECT_EQ(alice.get_mesh(m).name(), "hemi");
+  EXPECT_FALSE(alice.fetch(j.id()).empty());
+  EXPECT_EQ(code_of([&] { server.client().list_meshes(); }), grpc::StatusCode::UNAUTHENTICATED);
+  EXPECT_EQ(code_of([&] { server.client("wrong-token-0123456789").list_jobs(); }), grpc::StatusCode::UNAUTHENTICATED);
+  EXPECT_EQ(server.health(), 1);  // health needs no token
+}
+
+TEST(Service, TlsWithAClientCertificate) {
+  const std::string dir = temp_dir("svc-tls");
+  // A CA, a server certificate for 127.0.0.1 and a client certificate, made by openssl.
+  const std::string script = "cd " + dir +
+                             " && openssl req -x509 -newkey rsa:2048 -nodes -days 2 -subj /CN=test-ca -keyout ca.key -out ca.pem"
+                             " && openssl req -newkey rsa:2048 -nodes -subj /CN=localhost -keyout server.key -out server.csr"
+                             " && printf 'subjectAltName=IP:127.0.0.1,DNS:localhost' > ext.cnf"
+                             " && openssl x509 -req -in server.csr -CA ca.pem -CAkey ca.key -CAcreateserial -days 2 -extfile ext.cnf -out server.pem"
+                             " && openssl req -newkey rsa:2048 -nodes -subj /CN=client -keyout client.key -out client.csr"
+                             " && openssl x509 -req -in client.csr -CA ca.pem -CAkey ca.key -CAcreateserial -days 2 -out client.pem";
+  ASSERT_EQ(std::system((script + " > /dev/null 2>&1").c_str()), 0);
+  ServerProcess server(dir + "/data", {"--tls-cert", dir + "/server.pem", "--tls-key", dir + "/server.key",
+                                       "--tls-client-ca", dir + "/ca.pem"});
+  client::Options o;
+  o.server = server.address();
+  o.tls_ca_file = dir + "/ca.pem";
+  o.tls_cert_file = dir + "/client.pem";
+  o.tls_key_file = dir + "/client.key";
+  Client c(o);
+  EXPECT_EQ(c.upload_bytes(hemisphere(), "hemi").topology_class(), pb::TOPOLOGICAL_DISK);
+  // Without a client certificate, or in plaintext, nothing gets through.
+  client::Options no_cert = o;
+  no_cert.tls_cert_file.clear();
+  no_cert.tls_key_file.clear();
+  no_cert.call_timeout = 5;
+  EXPECT_NE(code_of([&] { Client(no_cert).list_meshes(); }), grpc::StatusCode::OK);
+  client::Options plain;
+  plain.server = server.address();
+  plain.call_timeout = 5;
+  EXPECT_NE(code_of([&] { Client(plain).list_meshes(); }), grpc::StatusCode::OK);
+}
+
+TEST(Service, ListsArePaged) {
+  ServerProcess server(temp_dir("svc-pages"));
+  Client c = server.client();
+  std::set<std::string> ids;
+  for (int k = 3; k < 8; ++k) ids.insert(c.upload_bytes(off_bytes(mesh::make_disk(k)), "d" + std::to_string(k)).id());
+  pb::ListMeshesRequest r;
+  r.set_page_size(2);
+  std::set<std::string> seen;
+  int pages = 0;
+  do {
+    grpc::ClientContext ctx;
+    pb::ListMeshesResponse page;
+    ASSERT_TRUE(c.stub().ListMeshes(&ctx, r, &page).ok());
+    for (const auto& m : page.meshes()) seen.insert(m.id());
+    r.set_page_token(page.next_page_token());
+    ++pages;
+  } while (!r.page_token().empty());
+  EXPECT_EQ(seen, ids);
+  EXPECT_EQ(pages, 3);
+  r.set_page_token("garbage");
+  grpc::ClientContext ctx;
+  pb::ListMeshesResponse page;
+  EXPECT_EQ(c.stub().ListMeshes(&ctx, r, &page).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+}
+
+}  // namespace
+}  // namespace brenier::test
