@@ -79,6 +79,16 @@ pb::Mesh Client::upload(const std::string& path, const std::string& name, const 
 }
 
 pb::Mesh Client::upload_bytes(const std::string& bytes, const std::string& name, const std::string& format) {
+  // The id is the content's hash: a mesh the server already holds for us is not sent again.
+  const std::string sha = sha256_hex(bytes);
+  {
+    pb::GetMeshRequest r;
+    r.set_id(sha);
+    pb::Mesh m;
+    const grpc::Status s = stub_->GetMesh(context().get(), r, &m);
+    if (s.ok()) return m;
+    if (s.error_code() != grpc::StatusCode::NOT_FOUND) check(s);
+  }
   auto ctx = context(false);
   pb::Mesh reply;
   auto writer = stub_->UploadMesh(ctx.get(), &reply);
@@ -87,7 +97,7 @@ pb::Mesh Client::upload_bytes(const std::string& bytes, const std::string& name,
   h->set_name(name);
   h->set_format(format);
   h->set_size_bytes(static_cast<int64_t>(bytes.size()));
-  h->set_sha256(sha256_hex(bytes));
+  h->set_sha256(sha);
   bool ok = writer->Write(m);
   constexpr size_t kChunk = 64 * 1024;
   for (size_t at = 0; ok && at < bytes.size(); at += kChunk) {

@@ -47,7 +47,8 @@ class Client {
   explicit Client(const Options& options = {});
 
   /// Uploads a mesh file in 64 KiB chunks (format from the extension unless given) and
-  /// returns the server's record; the id is the SHA-256 of the bytes.
+  /// returns the server's record; the id is the SHA-256 of the bytes, and bytes the server
+  /// already holds for this tenant are not sent again (GetMesh first).
   pb::Mesh upload(const std::string& path, const std::string& name = "", const std::string& format = "");
   pb::Mesh upload_bytes(const std::string& bytes, const std::string& name, const std::string& format = "");
   pb::Mesh get_mesh(const std::string& id);

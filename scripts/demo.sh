@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# Installs dependencies, builds brenier-compute and runs the main job on embedded defaults:
-# it inspects a few real meshes (a scanned face, a closed model, a defective one) and maps
-# them conformally onto the unit disk and the unit sphere and area-preservingly onto the
-# disk and the sphere, writing the maps into out/.
+# Installs dependencies, builds brenier and runs the main job on embedded defaults: it starts
+# the service, brenierd (SQLite and a blob directory under out/brenier-data, loopback, an
+# ephemeral port), and through the brenier CLI uploads real meshes, maps them conformally
+# and area-preservingly onto the disk and the sphere, computes a shape distance and a small
+# distance matrix, and prints the results; then the same engine offline (brenier-compute)
+# inspects a few meshes and maps more. Everything is written into out/.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 BUILD_DIR="${BUILD_DIR:-$ROOT/build}"
@@ -10,12 +12,53 @@ BUILD_DIR="${BUILD_DIR:-$ROOT/build}"
 bash "$ROOT/scripts/install-deps.sh"
 bash "$ROOT/scripts/fetch-data.sh"
 cmake -S "$ROOT" -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release >/dev/null
-cmake --build "$BUILD_DIR" -j "$(nproc)" --target brenier-compute
+cmake --build "$BUILD_DIR" -j "$(nproc)" --target brenier-compute brenierd brenier
 BC="$BUILD_DIR/tools/brenier-compute"
 M="$ROOT/data/meshes"
 
 OUT="$ROOT/out"
 mkdir -p "$OUT"
+
+# ---- the service ----------------------------------------------------------------------------
+rm -rf "$OUT/brenierd.port" "$OUT/brenier-data"
+"$BUILD_DIR/server/brenierd" --listen 127.0.0.1:0 --data "$OUT/brenier-data" --port-file "$OUT/brenierd.port" \
+  > "$OUT/brenierd.log" 2>&1 &
+SERVER_PID=$!
+trap 'kill -TERM $SERVER_PID 2>/dev/null || true' EXIT
+for _ in $(seq 100); do [[ -s "$OUT/brenierd.port" ]] && break; sleep 0.1; done
+export BRENIER_SERVER="127.0.0.1:$(cat "$OUT/brenierd.port")"
+B="$BUILD_DIR/client/brenier"
+echo "== brenierd listening on $BRENIER_SERVER (data in out/brenier-data, log in out/brenierd.log)"
+echo
+echo "== brenier upload data/meshes/{lion-head,bear,nefertiti}.off"
+"$B" upload "$M/lion-head.off" "$M/bear.off" "$M/nefertiti.off"
+echo
+echo "== brenier map data/meshes/lion-head.off --domain disk -o out/lion-head-disk.obj (conformal, Alg. 1)"
+"$B" --progress map "$M/lion-head.off" --domain disk -o "$OUT/lion-head-disk.obj"
+echo
+echo "== brenier map data/meshes/lion-head.off --method area-preserving -o out/lion-head-area.obj (conformal map, then OMT, Alg. 3)"
+"$B" --progress map "$M/lion-head.off" --method area-preserving -o "$OUT/lion-head-area.obj" --report "$OUT/lion-head-area.json"
+echo
+echo "== brenier map data/meshes/bear.off --domain sphere --method area-preserving -o out/bear-sphere-area.ply"
+"$B" map "$M/bear.off" --domain sphere --method area-preserving -o "$OUT/bear-sphere-area.ply"
+echo
+echo "== brenier distance data/meshes/nefertiti.off data/meshes/mesh_with_border.off (conformal Wasserstein, Alg. 5)"
+"$B" distance "$M/nefertiti.off" "$M/mesh_with_border.off"
+echo
+echo "== brenier matrix (six disk meshes, OMT-map distance, Def. 2.24) -o out/D-service.csv"
+"$B" --progress matrix "$M"/{nefertiti,mesh_with_border,patch-01,patch-13,patch-23,blob}.off -o "$OUT/D-service.csv" \
+  --method omt-linear
+cat "$OUT/D-service.csv"
+echo
+echo "== brenier jobs"
+"$B" jobs
+kill -TERM $SERVER_PID
+wait $SERVER_PID
+trap - EXIT
+echo "== brenierd stopped"
+echo
+
+# ---- the same engine offline ------------------------------------------------------------------
 
 for mesh in lion-head.off armadillo.off 3torus.off; do
   echo "== brenier-compute inspect data/meshes/$mesh"
@@ -34,20 +77,11 @@ echo "== the same repaired with --fix-orientation --json"
 set -e
 
 echo
-echo "== brenier-compute map data/meshes/lion-head.off --domain disk -o out/lion-head-disk.obj (conformal, vt per vertex)"
-"$BC" map "$M/lion-head.off" --domain disk -o "$OUT/lion-head-disk.obj"
-echo
 echo "== brenier-compute map data/meshes/armadillo.off --domain sphere -o out/armadillo-sphere.obj"
 "$BC" map "$M/armadillo.off" --domain sphere -o "$OUT/armadillo-sphere.obj"
 echo
 echo "== brenier-compute map data/meshes/bunny00.off --domain disk --cut-hole --json (a closed surface opened and flattened)"
 "$BC" map "$M/bunny00.off" --domain disk --cut-hole --json
-echo
-echo "== brenier-compute map data/meshes/lion-head.off --method area-preserving -o out/lion-head-area.obj (conformal map, then optimal transport)"
-"$BC" map "$M/lion-head.off" --method area-preserving -o "$OUT/lion-head-area.obj"
-echo
-echo "== brenier-compute map data/meshes/bear.off --domain sphere --method area-preserving -o out/bear-sphere-area.ply"
-"$BC" map "$M/bear.off" --domain sphere --method area-preserving -o "$OUT/bear-sphere-area.ply"
 echo
 echo "== brenier-compute distance data/meshes/nefertiti.off data/meshes/mesh_with_border.off --both (conformal Wasserstein, Alg. 5)"
 "$BC" distance "$M/nefertiti.off" "$M/mesh_with_border.off" --both

@@ -3,6 +3,7 @@
 #include <grpcpp/ext/proto_server_reflection_plugin.h>
 #include <grpcpp/grpcpp.h>
 #include <grpcpp/health_check_service_interface.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
 #include <CLI/CLI.hpp>
@@ -66,6 +67,8 @@ struct Flags {
 };
 
 int serve(const Flags& f) {
+  // Logs go to stderr (stdout stays free for whoever runs us), one line per event.
+  spdlog::set_default_logger(spdlog::stderr_color_mt("brenierd"));
   spdlog::set_level(spdlog::level::from_str(f.log_level));
   // OpenMP threads of concurrent jobs wait passively instead of spinning on the cores.
   setenv("OMP_WAIT_POLICY", "passive", 0);
