@@ -94,7 +94,12 @@ pb::Job run_job(Client& c, const Global& g, const pb::SubmitJobRequest& r, bool 
   if (no_wait) return j;
   j = c.watch(j.id(), progress_printer(g.json));
   *done = true;
-  if (j.state() == pb::FAILED) throw Error(grpc::StatusCode::ABORTED, "job " + j.id() + " failed: " + j.error().message());
+  if (j.state() == pb::FAILED) {
+    const bool input = j.error().code() == static_cast<int>(grpc::StatusCode::INVALID_ARGUMENT) ||
+                       j.error().code() == static_cast<int>(grpc::StatusCode::NOT_FOUND);
+    throw Error(input ? grpc::StatusCode::INVALID_ARGUMENT : grpc::StatusCode::ABORTED,
+                "job " + j.id() + " failed: " + j.error().message());
+  }
   return j;
 }
 

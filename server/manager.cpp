@@ -125,7 +125,7 @@ pb::Artifact artifact(Store& store, const std::string& name, const std::string& 
   a.set_media_type(media);
   a.set_filename(filename);
   a.set_size_bytes(static_cast<int64_t>(bytes.size()));
-  a.set_sha256(store.put_blob(bytes));
+  a.set_sha256(store.put_blob(Store::Blob::kResult, bytes));
   return a;
 }
 
@@ -202,7 +202,7 @@ pb::Mesh Manager::add_mesh(const std::string& tenant, const pb::UploadMeshReques
   m.set_genus(t.genus);
   *m.mutable_created() = TimeUtil::GetCurrentTime();
   for (const auto& p : cm.report.problems) m.add_warnings(p.message);
-  store_.commit_blob(temp, h.sha256());
+  store_.commit_blob(Store::Blob::kMesh, temp, h.sha256());
   return store_.put_mesh(tenant, m);
 }
 
@@ -408,10 +408,10 @@ struct Context {
   }
   mesh::CleanMesh load(const std::string& id, pb::Mesh* record = nullptr) {
     auto m = store.get_mesh(tenant, id);
-    if (!m || !store.has_blob(id)) invalid("mesh " + id + " was deleted");
+    if (!m || !store.has_blob(Store::Blob::kMesh, id)) invalid("mesh " + id + " was deleted");
     if (record) *record = *m;
     const auto format = mesh::parse_format(m->format());
-    std::ifstream in(store.blob_path(id), std::ios::binary);
+    std::ifstream in(store.blob_path(Store::Blob::kMesh, id), std::ios::binary);
     const std::string bytes(std::istreambuf_iterator<char>(in), {});
     return mesh::clean(mesh::read_soup(bytes, *format));
   }

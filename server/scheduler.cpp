@@ -4,6 +4,8 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <spdlog/spdlog.h>
+
 #include "common/parallel.hpp"
 
 namespace brenier::server {
@@ -146,7 +148,16 @@ void Scheduler::work() {
       // A job's numerical loops use the machine's cores (OpenMP), as brenier-compute does;
       // group tasks run one thread each (the pool fills the cores).
       omp_set_num_threads(hardware_threads());
-      run_(id);
+      try {
+        run_(id);
+      } catch (const std::exception& e) {
+        // run_ reports a job's own failures; what reaches here is the bookkeeping's (the
+        // store). The job stays as the store has it (requeued at the next start if it was
+        // running); the server goes on.
+        spdlog::error("job {}: {}", id, e.what());
+      } catch (...) {
+        spdlog::error("job {}: unknown error", id);
+      }
       lock.lock();
       continue;
     }

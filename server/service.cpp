@@ -196,7 +196,7 @@ grpc::Status Service::GetResult(grpc::ServerContext* ctx, const pb::GetResultReq
       if (req->artifact().empty() ? a == nullptr : x.name() == req->artifact()) a = &x;
     }
     if (!a) fail(ErrorCode::kNotFound, "job " + job.id() + " has no artifact '" + req->artifact() + "' (it has " + names + ")");
-    std::ifstream in(manager_.store().blob_path(a->sha256()), std::ios::binary);
+    std::ifstream in(manager_.store().blob_path(Store::Blob::kResult, a->sha256()), std::ios::binary);
     if (!in) fail(ErrorCode::kInternal, "the artifact's blob is missing");
     pb::ResultChunk head;
     *head.mutable_artifact() = *a;

@@ -124,15 +124,17 @@ std::string Store::temp_path() {
          std::to_string(counter.fetch_add(1));
 }
 
-std::string Store::blob_path(const std::string& sha) const { return dir_ + "/blobs/" + sha.substr(0, 2) + "/" + sha; }
-
-bool Store::has_blob(const std::string& sha) const {
-  std::error_code ec;
-  return sha.size() == 64 && fs::exists(blob_path(sha), ec);
+std::string Store::blob_path(Blob kind, const std::string& sha) const {
+  return dir_ + (kind == Blob::kMesh ? "/blobs/meshes/" : "/blobs/results/") + sha.substr(0, 2) + "/" + sha;
 }
 
-void Store::commit_blob(const std::string& temp, const std::string& sha) {
-  const std::string path = blob_path(sha);
+bool Store::has_blob(Blob kind, const std::string& sha) const {
+  std::error_code ec;
+  return sha.size() == 64 && fs::exists(blob_path(kind, sha), ec);
+}
+
+void Store::commit_blob(Blob kind, const std::string& temp, const std::string& sha) {
+  const std::string path = blob_path(kind, sha);
   std::error_code ec;
   if (fs::exists(path, ec)) {
     fs::remove(temp, ec);
@@ -145,16 +147,16 @@ void Store::commit_blob(const std::string& temp, const std::string& sha) {
   fsync_path(fs::path(path).parent_path().string(), true);
 }
 
-std::string Store::put_blob(const std::string& bytes) {
+std::string Store::put_blob(Blob kind, const std::string& bytes) {
   const std::string sha = sha256_hex(bytes);
-  if (has_blob(sha)) return sha;
+  if (has_blob(kind, sha)) return sha;
   const std::string temp = temp_path();
   {
     std::ofstream os(temp, std::ios::binary | std::ios::trunc);
     if (!os || !os.write(bytes.data(), static_cast<std::streamsize>(bytes.size())) || !os.flush())
       fail(ErrorCode::kInternal, "cannot write a blob in " + dir_ + "/tmp");
   }
-  commit_blob(temp, sha);
+  commit_blob(kind, temp, sha);
   return sha;
 }
 
@@ -209,7 +211,7 @@ bool Store::delete_mesh(const std::string& tenant, const std::string& id) {
   s.text(1, id);
   if (!s.step()) {
     std::error_code ec;
-    fs::remove(blob_path(id), ec);
+    fs::remove(blob_path(Blob::kMesh, id), ec);
   }
   return true;
 }

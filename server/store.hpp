@@ -31,15 +31,19 @@ class Store {
   const std::string& dir() const { return dir_; }
 
   // ---- blobs ----
+  /// Two content-addressed namespaces: uploaded meshes (removed with the last mesh row that
+  /// names them) and job results (kept with their jobs). Separate, so that deleting a mesh
+  /// whose bytes happen to equal a result (a downloaded map uploaded again) keeps the result.
+  enum class Blob { kMesh, kResult };
   /// A fresh path under DIR/tmp for a file about to become a blob.
   std::string temp_path();
   /// Makes the finished file at `temp` the blob `sha256` (fsync, then rename; a blob that is
   /// already there is kept and `temp` removed).
-  void commit_blob(const std::string& temp, const std::string& sha256);
+  void commit_blob(Blob kind, const std::string& temp, const std::string& sha256);
   /// Writes `bytes` as a blob and returns its SHA-256.
-  std::string put_blob(const std::string& bytes);
-  std::string blob_path(const std::string& sha256) const;
-  bool has_blob(const std::string& sha256) const;
+  std::string put_blob(Blob kind, const std::string& bytes);
+  std::string blob_path(Blob kind, const std::string& sha256) const;
+  bool has_blob(Blob kind, const std::string& sha256) const;
 
   // ---- meshes (per tenant; one blob may back several tenants' rows) ----
   /// Inserts the mesh, or returns the row the tenant already has for that id.

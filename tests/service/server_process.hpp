@@ -68,6 +68,10 @@ class ServerProcess {
     pid_ = -1;
     return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   }
+  /// SIGTERM without waiting (then stop() waits).
+  void term() const {
+    if (pid_ > 0) ::kill(pid_, SIGTERM);
+  }
   void kill9() {
     if (pid_ <= 0) return;
     ::kill(pid_, SIGKILL);

@@ -123,6 +123,10 @@ TEST(Service, MapRoundTripsGiveTheEnginesAnswer) {
     r.method = method == pb::AREA_PRESERVING ? "area-preserving" : "conformal";
     const jobs::MapOutcome local = jobs::run_map(clean_of(hemisphere()), "hemisphere", r);
     EXPECT_EQ(obj, jobs::map_mesh_bytes(local, mesh::Format::kObj)) << r.method;
+    // A downloaded result uploaded as a mesh, then deleted, leaves the job's result whole.
+    const pb::Mesh again = c.upload_bytes(obj, "result.obj", "obj");
+    c.delete_mesh(again.id());
+    EXPECT_EQ(c.fetch(j.id()), obj);
   }
   // The sphere, as PLY.
   const pb::Mesh s = c.upload_bytes(icosphere(), "ico.off");
@@ -258,6 +262,7 @@ TEST(Service, CancellingARunningAreaPreservingJobEndsItWithinOneSecond) {
   watcher.join();
   const double seconds = std::chrono::duration<double>(Clock::time_point(Clock::duration(ended_ns.load())) - t0).count();
   EXPECT_LT(seconds, 1.0);
+  std::printf("cancel to CANCELLED event: %.3f s\n", seconds);
   const pb::Job done = c.get(j.id());
   EXPECT_EQ(done.state(), pb::CANCELLED);
   EXPECT_EQ(code_of([&] { c.fetch(j.id()); }), grpc::StatusCode::FAILED_PRECONDITION);
@@ -421,6 +426,30 @@ TEST(Service, SigtermAfterTheGracePeriodRequeuesTheRunningJob) {
   const pb::Job j = c2.watch(id);
   EXPECT_EQ(j.state(), pb::SUCCEEDED) << j.error().message();
   EXPECT_EQ(j.attempts(), 2);
+}
+
+TEST(Service, ShuttingDownRefusesNewWorkAndReportsNotServing) {
+  ServerProcess server(temp_dir("svc-drain"), {"--workers", "1", "--grace", "30"});
+  Client c = server.client();
+  const std::string big = c.upload_bytes(big_hemisphere(), "big").id();
+  const std::string id = c.submit(map_spec(big, pb::DISK, pb::AREA_PRESERVING)).id();
+  wait_for_stage(c, id, "omt");
+  server.term();
+  int health = 1;
+  for (int k = 0; k < 200 && health == 1; ++k) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    health = server.health();
+  }
+  EXPECT_EQ(health, 2);  // NOT_SERVING while it drains
+  EXPECT_EQ(code_of([&] { c.submit(map_spec(big, pb::DISK, pb::CONFORMAL)); }), grpc::StatusCode::UNAVAILABLE);
+  EXPECT_EQ(code_of([&] { c.upload_bytes(hemisphere(), "late.off"); }), grpc::StatusCode::UNAVAILABLE);
+  // Reads still work, and the running job is given its grace period to finish.
+  EXPECT_EQ(c.get(id).state(), pb::RUNNING);
+  EXPECT_EQ(server.stop(), 0);
+  server.start({"--workers", "1"});
+  const pb::Job j = server.client().get(id);
+  EXPECT_EQ(j.state(), pb::SUCCEEDED) << j.error().message();
+  EXPECT_EQ(j.attempts(), 1);
 }
 
 // ---- security ----------------------------------------------------------------------------
