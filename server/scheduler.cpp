@@ -65,6 +65,28 @@ void Scheduler::join() {
     if (t.joinable()) t.join();
 }
 
+// Runs the group's next task with the lock released (one OpenMP thread: the pool fills the
+// cores), then records its end and the first failure by index.
+void Scheduler::run_next(Group& g, std::unique_lock<std::mutex>& lock) {
+  const int k = g.next++;
+  lock.unlock();
+  omp_set_num_threads(1);
+  std::exception_ptr failure;
+  try {
+    (*g.task)(k);
+  } catch (...) {
+    failure = std::current_exception();
+  }
+  lock.lock();
+  if (failure && (!g.failure || k < g.failed_at)) {
+    g.failure = failure;
+    g.failed_at = k;
+    g.stop = true;
+  }
+  ++g.finished;
+  g.done.notify_all();
+}
+
 // Takes one task of the oldest group that has any left and runs it (the lock released
 // meanwhile). False when no group has a task to give.
 bool Scheduler::take_task(std::unique_lock<std::mutex>& lock) {
@@ -74,23 +96,7 @@ bool Scheduler::take_task(std::unique_lock<std::mutex>& lock) {
       groups_.erase(groups_.begin());
       continue;
     }
-    const int k = g->next++;
-    lock.unlock();
-    omp_set_num_threads(1);
-    std::exception_ptr failure;
-    try {
-      (*g->task)(k);
-    } catch (...) {
-      failure = std::current_exception();
-    }
-    lock.lock();
-    if (failure && (!g->failure || k < g->failed_at)) {
-      g->failure = failure;
-      g->failed_at = k;
-      g->stop = true;
-    }
-    ++g->finished;
-    g->done.notify_all();
+    run_next(*g, lock);
     return true;
   }
   return false;
@@ -106,24 +112,7 @@ void Scheduler::run_group(int n, const std::function<void(int)>& task) {
   cv_.notify_all();
   // Help with our own group (others' tasks are left to their workers), then wait for the
   // tasks other workers took.
-  while (!g->stop && g->next < g->n) {
-    const int k = g->next++;
-    lock.unlock();
-    omp_set_num_threads(1);
-    std::exception_ptr failure;
-    try {
-      task(k);
-    } catch (...) {
-      failure = std::current_exception();
-    }
-    lock.lock();
-    if (failure && (!g->failure || k < g->failed_at)) {
-      g->failure = failure;
-      g->failed_at = k;
-      g->stop = true;
-    }
-    ++g->finished;
-  }
+  while (!g->stop && g->next < g->n) run_next(*g, lock);
   const int started = g->next;
   g->done.wait(lock, [&] { return g->finished >= started; });
   std::erase(groups_, g);

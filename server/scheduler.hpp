@@ -42,6 +42,7 @@ class Scheduler {
   struct Group;
   void work();
   bool take_task(std::unique_lock<std::mutex>& lock);
+  void run_next(Group& g, std::unique_lock<std::mutex>& lock);
 
   RunJob run_;
   int capacity_;

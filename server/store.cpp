@@ -74,6 +74,21 @@ int64_t token_value(const std::string& token) {
   return v;
 }
 
+// Rows (seq, record) of a query that asked for limit + 1 rows after the page token: the
+// records of the page, and the token of the next page when there is one more row.
+template <class M>
+std::vector<M> page_of(Stmt& s, int limit, std::string& next) {
+  std::vector<M> out;
+  next.clear();
+  while (s.step()) {
+    if (static_cast<int>(out.size()) == limit) return out;  // one more row: `next` stays
+    next = std::to_string(s.column_int(0));
+    out.push_back(parse<M>(s.column_blob(1)));
+  }
+  next.clear();
+  return out;
+}
+
 void fsync_path(const std::string& path, bool directory) {
   const int fd = ::open(path.c_str(), directory ? O_RDONLY | O_DIRECTORY : O_RDONLY);
   if (fd < 0) return;
@@ -187,19 +202,7 @@ std::vector<pb::Mesh> Store::list_meshes(const std::string& tenant, const std::s
   std::lock_guard<std::mutex> lock(mutex_);
   Stmt s(db_, "SELECT seq, record FROM meshes WHERE tenant = ? AND seq > ? ORDER BY seq LIMIT ?");
   s.text(1, tenant).integer(2, after).integer(3, limit + 1);
-  std::vector<pb::Mesh> out;
-  next.clear();
-  bool more = false;
-  while (s.step()) {
-    if (static_cast<int>(out.size()) == limit) {
-      more = true;
-      break;
-    }
-    next = std::to_string(s.column_int(0));
-    out.push_back(parse<pb::Mesh>(s.column_blob(1)));
-  }
-  if (!more) next.clear();
-  return out;
+  return page_of<pb::Mesh>(s, limit, next);
 }
 
 bool Store::delete_mesh(const std::string& tenant, const std::string& id) {
@@ -260,19 +263,7 @@ std::vector<pb::Job> Store::list_jobs(const std::string& tenant, pb::JobState st
   std::lock_guard<std::mutex> lock(mutex_);
   Stmt s(db_, "SELECT seq, record FROM jobs WHERE tenant = ? AND seq > ? AND (? = 0 OR state = ?) ORDER BY seq LIMIT ?");
   s.text(1, tenant).integer(2, after).integer(3, state).integer(4, state).integer(5, limit + 1);
-  std::vector<pb::Job> out;
-  next.clear();
-  bool more = false;
-  while (s.step()) {
-    if (static_cast<int>(out.size()) == limit) {
-      more = true;
-      break;
-    }
-    next = std::to_string(s.column_int(0));
-    out.push_back(parse<pb::Job>(s.column_blob(1)));
-  }
-  if (!more) next.clear();
-  return out;
+  return page_of<pb::Job>(s, limit, next);
 }
 
 void Store::update_job(const pb::Job& job) {
