@@ -21,10 +21,11 @@ namespace {
 // message (a broken database is ours to fix, not the client's).
 class Stmt {
  public:
-  Stmt(sqlite3* db, const char* sql) : db_(db) {
-    if (sqlite3_prepare_v2(db, sql, -1, &s_, nullptr) != SQLITE_OK) fail(ErrorCode::kInternal, sqlite3_errmsg(db));
+  Stmt(Store::Connection& c, const char* sql) : db_(c.db), s_(c.prepare(sql)) {}
+  ~Stmt() {
+    sqlite3_reset(s_);
+    sqlite3_clear_bindings(s_);
   }
-  ~Stmt() { sqlite3_finalize(s_); }
   Stmt& text(int i, const std::string& v) {
     sqlite3_bind_text(s_, i, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT);
     return *this;
@@ -56,7 +57,7 @@ class Stmt {
 
  private:
   sqlite3* db_;
-  sqlite3_stmt* s_ = nullptr;
+  sqlite3_stmt* s_;
 };
 
 template <class M>
@@ -98,19 +99,57 @@ void fsync_path(const std::string& path, bool directory) {
 
 }  // namespace
 
+sqlite3_stmt* Store::Connection::prepare(const char* sql) {
+  for (auto& [text, stmt] : statements)
+    if (text == sql) return stmt;
+  sqlite3_stmt* stmt = nullptr;
+  if (sqlite3_prepare_v3(db, sql, -1, SQLITE_PREPARE_PERSISTENT, &stmt, nullptr) != SQLITE_OK)
+    fail(ErrorCode::kInternal, std::string("database: ") + sqlite3_errmsg(db));
+  statements.emplace_back(sql, stmt);
+  return stmt;
+}
+
+Store::Connection::~Connection() {
+  for (auto& [text, stmt] : statements) sqlite3_finalize(stmt);
+  sqlite3_close(db);
+}
+
+namespace {
+sqlite3* open_db(const std::string& dir) {
+  sqlite3* db = nullptr;
+  if (sqlite3_open_v2((dir + "/brenier.db").c_str(), &db, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_NOMUTEX,
+                      nullptr) != SQLITE_OK) {
+    const std::string msg = db ? sqlite3_errmsg(db) : "out of memory";
+    sqlite3_close(db);
+    invalid("cannot open the database in " + dir + ": " + msg);
+  }
+  sqlite3_busy_timeout(db, 10000);
+  return db;
+}
+}  // namespace
+
+std::unique_lock<std::mutex> Store::reader(Connection*& c) {
+  const size_t n = readers_.size();
+  const unsigned start = next_reader_.fetch_add(1);
+  for (size_t k = 0; k < n; ++k) {
+    Connection& r = *readers_[(start + k) % n];
+    std::unique_lock<std::mutex> lock(r.mutex, std::try_to_lock);
+    if (lock.owns_lock()) {
+      c = &r;
+      return lock;
+    }
+  }
+  c = readers_[start % n].get();
+  return std::unique_lock<std::mutex>(c->mutex);
+}
+
 Store::Store(const std::string& dir) : dir_(dir) {
   std::error_code ec;
   fs::create_directories(dir + "/blobs", ec);
   if (!ec) fs::create_directories(dir + "/tmp", ec);
   if (ec) invalid("cannot create the data directory " + dir + ": " + ec.message());
   for (const auto& e : fs::directory_iterator(dir + "/tmp", ec)) fs::remove_all(e.path(), ec);
-  if (sqlite3_open_v2((dir + "/brenier.db").c_str(), &db_, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_FULLMUTEX,
-                      nullptr) != SQLITE_OK) {
-    const std::string msg = db_ ? sqlite3_errmsg(db_) : "out of memory";
-    sqlite3_close(db_);
-    invalid("cannot open the database in " + dir + ": " + msg);
-  }
-  sqlite3_busy_timeout(db_, 5000);
+  writer_.db = open_db(dir);
   exec("PRAGMA journal_mode=WAL");
   exec("PRAGMA synchronous=NORMAL");
   exec("CREATE TABLE IF NOT EXISTS meshes (seq INTEGER PRIMARY KEY AUTOINCREMENT, tenant TEXT NOT NULL, "
@@ -119,13 +158,17 @@ Store::Store(const std::string& dir) : dir_(dir) {
        "tenant TEXT NOT NULL, request_id TEXT NOT NULL, state INTEGER NOT NULL, record BLOB NOT NULL)");
   exec("CREATE UNIQUE INDEX IF NOT EXISTS jobs_request ON jobs(tenant, request_id) WHERE request_id <> ''");
   exec("CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state)");
+  for (int k = 0; k < 4; ++k) {
+    readers_.push_back(std::make_unique<Connection>());
+    readers_.back()->db = open_db(dir);
+  }
 }
 
-Store::~Store() { sqlite3_close(db_); }
+Store::~Store() = default;
 
 void Store::exec(const char* sql) {
   char* err = nullptr;
-  if (sqlite3_exec(db_, sql, nullptr, nullptr, &err) != SQLITE_OK) {
+  if (sqlite3_exec(writer_.db, sql, nullptr, nullptr, &err) != SQLITE_OK) {
     const std::string msg = err ? err : "unknown";
     sqlite3_free(err);
     fail(ErrorCode::kInternal, std::string("database: ") + msg);
@@ -176,21 +219,22 @@ std::string Store::put_blob(Blob kind, const std::string& bytes) {
 }
 
 pb::Mesh Store::put_mesh(const std::string& tenant, const pb::Mesh& mesh) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  Stmt(db_, "INSERT OR IGNORE INTO meshes (tenant, id, record) VALUES (?, ?, ?)")
+  std::lock_guard<std::mutex> lock(writer_.mutex);
+  Stmt(writer_, "INSERT OR IGNORE INTO meshes (tenant, id, record) VALUES (?, ?, ?)")
       .text(1, tenant)
       .text(2, mesh.id())
       .blob(3, mesh.SerializeAsString())
       .step();
-  Stmt s(db_, "SELECT record FROM meshes WHERE tenant = ? AND id = ?");
+  Stmt s(writer_, "SELECT record FROM meshes WHERE tenant = ? AND id = ?");
   s.text(1, tenant).text(2, mesh.id());
   if (!s.step()) fail(ErrorCode::kInternal, "database: a mesh just stored is not there");
   return parse<pb::Mesh>(s.column_blob(0));
 }
 
 std::optional<pb::Mesh> Store::get_mesh(const std::string& tenant, const std::string& id) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  Stmt s(db_, "SELECT record FROM meshes WHERE tenant = ? AND id = ?");
+  Connection* c = nullptr;
+  auto lock = reader(c);
+  Stmt s(*c, "SELECT record FROM meshes WHERE tenant = ? AND id = ?");
   s.text(1, tenant).text(2, id);
   if (!s.step()) return std::nullopt;
   return parse<pb::Mesh>(s.column_blob(0));
@@ -199,18 +243,19 @@ std::optional<pb::Mesh> Store::get_mesh(const std::string& tenant, const std::st
 std::vector<pb::Mesh> Store::list_meshes(const std::string& tenant, const std::string& token, int limit,
                                          std::string& next) {
   const int64_t after = token_value(token);
-  std::lock_guard<std::mutex> lock(mutex_);
-  Stmt s(db_, "SELECT seq, record FROM meshes WHERE tenant = ? AND seq > ? ORDER BY seq LIMIT ?");
+  Connection* c = nullptr;
+  auto lock = reader(c);
+  Stmt s(*c, "SELECT seq, record FROM meshes WHERE tenant = ? AND seq > ? ORDER BY seq LIMIT ?");
   s.text(1, tenant).integer(2, after).integer(3, limit + 1);
   return page_of<pb::Mesh>(s, limit, next);
 }
 
 bool Store::delete_mesh(const std::string& tenant, const std::string& id) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  Stmt d(db_, "DELETE FROM meshes WHERE tenant = ? AND id = ?");
+  std::lock_guard<std::mutex> lock(writer_.mutex);
+  Stmt d(writer_, "DELETE FROM meshes WHERE tenant = ? AND id = ?");
   d.text(1, tenant).text(2, id).step();
-  if (sqlite3_changes(db_) == 0) return false;
-  Stmt s(db_, "SELECT 1 FROM meshes WHERE id = ? LIMIT 1");
+  if (sqlite3_changes(writer_.db) == 0) return false;
+  Stmt s(writer_, "SELECT 1 FROM meshes WHERE id = ? LIMIT 1");
   s.text(1, id);
   if (!s.step()) {
     std::error_code ec;
@@ -220,16 +265,16 @@ bool Store::delete_mesh(const std::string& tenant, const std::string& id) {
 }
 
 pb::Job Store::insert_job(const std::string& tenant, const pb::Job& job, bool& inserted) {
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::lock_guard<std::mutex> lock(writer_.mutex);
   if (!job.request_id().empty()) {
-    Stmt s(db_, "SELECT record FROM jobs WHERE tenant = ? AND request_id = ?");
+    Stmt s(writer_, "SELECT record FROM jobs WHERE tenant = ? AND request_id = ?");
     s.text(1, tenant).text(2, job.request_id());
     if (s.step()) {
       inserted = false;
       return parse<pb::Job>(s.column_blob(0));
     }
   }
-  Stmt(db_, "INSERT INTO jobs (id, tenant, request_id, state, record) VALUES (?, ?, ?, ?, ?)")
+  Stmt(writer_, "INSERT INTO jobs (id, tenant, request_id, state, record) VALUES (?, ?, ?, ?, ?)")
       .text(1, job.id())
       .text(2, tenant)
       .text(3, job.request_id())
@@ -241,16 +286,18 @@ pb::Job Store::insert_job(const std::string& tenant, const pb::Job& job, bool& i
 }
 
 std::optional<pb::Job> Store::get_job(const std::string& tenant, const std::string& id) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  Stmt s(db_, "SELECT record FROM jobs WHERE tenant = ? AND id = ?");
+  Connection* c = nullptr;
+  auto lock = reader(c);
+  Stmt s(*c, "SELECT record FROM jobs WHERE tenant = ? AND id = ?");
   s.text(1, tenant).text(2, id);
   if (!s.step()) return std::nullopt;
   return parse<pb::Job>(s.column_blob(0));
 }
 
 std::optional<pb::Job> Store::get_job_any(const std::string& id, std::string* tenant) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  Stmt s(db_, "SELECT record, tenant FROM jobs WHERE id = ?");
+  Connection* c = nullptr;
+  auto lock = reader(c);
+  Stmt s(*c, "SELECT record, tenant FROM jobs WHERE id = ?");
   s.text(1, id);
   if (!s.step()) return std::nullopt;
   if (tenant) *tenant = s.column_text(1);
@@ -260,15 +307,16 @@ std::optional<pb::Job> Store::get_job_any(const std::string& id, std::string* te
 std::vector<pb::Job> Store::list_jobs(const std::string& tenant, pb::JobState state, const std::string& token, int limit,
                                       std::string& next) {
   const int64_t after = token_value(token);
-  std::lock_guard<std::mutex> lock(mutex_);
-  Stmt s(db_, "SELECT seq, record FROM jobs WHERE tenant = ? AND seq > ? AND (? = 0 OR state = ?) ORDER BY seq LIMIT ?");
+  Connection* c = nullptr;
+  auto lock = reader(c);
+  Stmt s(*c, "SELECT seq, record FROM jobs WHERE tenant = ? AND seq > ? AND (? = 0 OR state = ?) ORDER BY seq LIMIT ?");
   s.text(1, tenant).integer(2, after).integer(3, state).integer(4, state).integer(5, limit + 1);
   return page_of<pb::Job>(s, limit, next);
 }
 
 void Store::update_job(const pb::Job& job) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  Stmt(db_, "UPDATE jobs SET state = ?, record = ? WHERE id = ?")
+  std::lock_guard<std::mutex> lock(writer_.mutex);
+  Stmt(writer_, "UPDATE jobs SET state = ?, record = ? WHERE id = ?")
       .integer(1, job.state())
       .blob(2, job.SerializeAsString())
       .text(3, job.id())
@@ -276,13 +324,14 @@ void Store::update_job(const pb::Job& job) {
 }
 
 void Store::delete_job(const std::string& id) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  Stmt(db_, "DELETE FROM jobs WHERE id = ?").text(1, id).step();
+  std::lock_guard<std::mutex> lock(writer_.mutex);
+  Stmt(writer_, "DELETE FROM jobs WHERE id = ?").text(1, id).step();
 }
 
 std::vector<std::string> Store::unfinished_jobs() {
-  std::lock_guard<std::mutex> lock(mutex_);
-  Stmt s(db_, "SELECT id FROM jobs WHERE state IN (?, ?) ORDER BY seq");
+  Connection* c = nullptr;
+  auto lock = reader(c);
+  Stmt s(*c, "SELECT id FROM jobs WHERE state IN (?, ?) ORDER BY seq");
   s.integer(1, pb::QUEUED).integer(2, pb::RUNNING);
   std::vector<std::string> out;
   while (s.step()) out.push_back(s.column_text(0));

@@ -5,7 +5,9 @@
 // commits on a power cut, not on a crash).
 #pragma once
 
+#include <atomic>
 #include <cstdint>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -14,6 +16,7 @@
 #include "brenier/v1/brenier.pb.h"
 
 struct sqlite3;
+struct sqlite3_stmt;
 
 namespace brenier::server {
 
@@ -70,11 +73,25 @@ class Store {
   /// Queued and running jobs of every tenant, oldest first.
   std::vector<std::string> unfinished_jobs();
 
+ /// One SQLite connection with its prepared statements (kept: preparing is most of a small
+  /// query's cost) and its own lock.
+  struct Connection {
+    sqlite3* db = nullptr;
+    std::mutex mutex;
+    std::vector<std::pair<const char*, sqlite3_stmt*>> statements;
+    sqlite3_stmt* prepare(const char* sql);
+    ~Connection();
+  };
+
  private:
   void exec(const char* sql);
+  /// A reader connection, locked for the caller: WAL lets reads run beside the one writer,
+  /// so a GetJob or a submission's mesh lookup never waits behind a job's commit.
+  std::unique_lock<std::mutex> reader(Connection*& c);
   std::string dir_;
-  sqlite3* db_ = nullptr;
-  std::mutex mutex_;
+  Connection writer_;  // every write, and the reads a write depends on
+  std::vector<std::unique_ptr<Connection>> readers_;
+  std::atomic<unsigned> next_reader_{0};
 };
 
 }  // namespace brenier::server
