@@ -411,6 +411,92 @@ TEST(Service, KillNineMidWorkThenARestartLosesNothing) {
   EXPECT_EQ(c.get(jobs[2]).attempts(), 1);
 }
 
+TEST(Service, KillNineDuringAnUploadLeavesItAbsent) {
+  const std::string data = temp_dir("svc-kill-upload");
+  ServerProcess server(data);
+  Client c = server.client();
+  const std::string& bytes = big_hemisphere();
+  grpc::ClientContext ctx;
+  pb::Mesh reply;
+  auto w = c.stub().UploadMesh(&ctx, &reply);
+  pb::UploadMeshRequest m;
+  m.mutable_header()->set_name("big.off");
+  m.mutable_header()->set_size_bytes(static_cast<int64_t>(bytes.size()));
+  m.mutable_header()->set_sha256(client::sha256_hex(bytes));
+  ASSERT_TRUE(w->Write(m));
+  for (size_t at = 0; at < bytes.size() / 2; at += 65536) {
+    pb::UploadMeshRequest ch;
+    ch.set_chunk(bytes.substr(at, 65536));
+    ASSERT_TRUE(w->Write(ch));
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));  // half of it is on the server's disk
+  server.kill9();
+  w->Finish();
+  server.start({});
+  Client c2 = server.client();
+  EXPECT_EQ(code_of([&] { c2.get_mesh(client::sha256_hex(bytes)); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_TRUE(c2.list_meshes().empty());
+  EXPECT_TRUE(std::filesystem::is_empty(data + "/tmp"));  // the partial file was cleared at the start
+  EXPECT_EQ(c2.upload_bytes(bytes, "big.off").vertices(), clean_of(bytes).mesh.num_vertices());
+}
+
+TEST(Service, AMatrixKilledMidwayResumesFromItsFinishedTiles) {
+  const std::string data = temp_dir("svc-kill-matrix");
+  ServerProcess server(data, {"--workers", "1"});
+  std::vector<std::string> ids;
+  std::vector<distance::ShapeInput> in;
+  jobs::ShapeRequest sr;
+  {
+    Client c = server.client();
+    for (int k = 0; k < 6; ++k) {
+      mesh::TriMesh m = mesh::make_disk(12 + k);
+      for (int v = 0; v < m.num_vertices(); ++v)
+        m.V(v, 2) = 0.1 * (k + 1) * std::exp(-3 * (m.V.row(v).head<2>() - Eigen::RowVector2d(0.1 * k, 0)).squaredNorm());
+      const std::string bytes = off_bytes(m);
+      ids.push_back(c.upload_bytes(bytes, "s" + std::to_string(k)).id());
+      in.push_back(jobs::shape_input(clean_of(bytes), "s" + std::to_string(k), "s", sr));
+    }
+  }
+  pb::SubmitJobRequest r;
+  for (const auto& id : ids) r.mutable_matrix()->add_meshes(id);
+  Client c = server.client();
+  const std::string job = c.submit(r).id();
+  // Wait for the first finished tile (a "pairs" event), then kill.
+  for (int k = 0; k < 3000; ++k) {
+    const pb::Job j = c.get(job);
+    if (j.stage() == "pairs" || j.state() != pb::RUNNING && j.state() != pb::QUEUED) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  ASSERT_EQ(c.get(job).stage(), "pairs");
+  server.kill9();
+  int kept = 0;
+  for (const auto& e : std::filesystem::directory_iterator(data + "/work/" + job))
+    kept += e.path().extension() == ".json";
+  EXPECT_GE(kept, 1);
+  server.start({"--workers", "1"});
+  Client c2 = server.client();
+  const pb::Job done = c2.watch(job);
+  ASSERT_EQ(done.state(), pb::SUCCEEDED) << done.error().message();
+  EXPECT_EQ(done.attempts(), 2);
+  // The assembled matrix is the engine's, tiles from both runs together.
+  const Eigen::MatrixXd expect = distance::assemble({distance::compute_tile(in, distance::MatrixOptions{
+                                                         .method = distance::Method::kWasserstein})});
+  std::istringstream csv(c2.fetch(job, "matrix"));
+  std::string line;
+  std::getline(csv, line);
+  for (int i = 0; i < 6; ++i) {
+    std::getline(csv, line);
+    std::istringstream row(line);
+    std::string cell;
+    std::getline(row, cell, ',');
+    for (int k = 0; k < 6; ++k) {
+      std::getline(row, cell, ',');
+      EXPECT_EQ(std::stod(cell), expect(i, k)) << i << "," << k;
+    }
+  }
+  EXPECT_FALSE(std::filesystem::exists(data + "/work/" + job));  // cleaned up
+}
+
 TEST(Service, SigtermAfterTheGracePeriodRequeuesTheRunningJob) {
   const std::string data = temp_dir("svc-term");
   ServerProcess server(data, {"--workers", "1", "--grace", "0.2"});
