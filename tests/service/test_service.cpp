@@ -15,6 +15,7 @@
 #include "jobs/jobs.hpp"
 #include "mesh/io.hpp"
 #include "mesh/shapes.hpp"
+#include "reflection.grpc.pb.h"
 #include "server_process.hpp"
 
 namespace brenier::test {
@@ -358,6 +359,11 @@ TEST(Service, BadUploadsGetTheRightStatusAndTheServerStaysHealthy) {
   EXPECT_EQ(c4, grpc::StatusCode::RESOURCE_EXHAUSTED) << m4;
   auto [c5, m5] = raw(h, {std::string(70000, 'x')});  // a chunk over 64 KiB
   EXPECT_EQ(c5, grpc::StatusCode::INVALID_ARGUMENT) << m5;
+  pb::UploadMeshRequest::Header unknown = h;
+  unknown.set_format("xyz");
+  auto [c7, m7] = raw(unknown, {good});  // unknown format
+  EXPECT_EQ(c7, grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(m7.find("unknown format"), std::string::npos) << m7;
   auto [c6, m6] = raw(h, {good}, false);  // no header
   EXPECT_EQ(c6, grpc::StatusCode::INVALID_ARGUMENT) << m6;
   // Over the vertex limit (a valid mesh of 1,141 vertices).
@@ -598,6 +604,27 @@ TEST(Service, TlsWithAClientCertificate) {
   plain.server = server.address();
   plain.call_timeout = 5;
   EXPECT_NE(code_of([&] { Client(plain).list_meshes(); }), grpc::StatusCode::OK);
+}
+
+TEST(Service, ReflectionListsTheServices) {
+  ServerProcess server(temp_dir("svc-reflect"));
+  auto stub = grpc::reflection::v1alpha::ServerReflection::NewStub(
+      grpc::CreateChannel(server.address(), grpc::InsecureChannelCredentials()));
+  grpc::ClientContext ctx;
+  auto stream = stub->ServerReflectionInfo(&ctx);
+  grpc::reflection::v1alpha::ServerReflectionRequest req;
+  req.set_list_services("");
+  ASSERT_TRUE(stream->Write(req));
+  stream->WritesDone();
+  grpc::reflection::v1alpha::ServerReflectionResponse resp;
+  ASSERT_TRUE(stream->Read(&resp));
+  std::set<std::string> names;
+  for (const auto& s : resp.list_services_response().service()) names.insert(s.name());
+  EXPECT_TRUE(names.count("brenier.v1.Brenier")) << resp.DebugString();
+  EXPECT_TRUE(names.count("grpc.health.v1.Health")) << resp.DebugString();
+  while (stream->Read(&resp)) {
+  }
+  EXPECT_TRUE(stream->Finish().ok());
 }
 
 TEST(Service, ListsArePaged) {
