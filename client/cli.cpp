@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <map>
 #include <nlohmann/json.hpp>
 
 #include "client.hpp"
@@ -152,6 +153,7 @@ int main(int argc, char** argv) {
     std::string mesh, domain = "disk", method = "conformal", output, report, weights, format;
     std::vector<int> markers;
     double t = 0, tolerance = 0;
+    int hole_vertex = -1, max_iterations = 0;
     bool cut = false, no_wait = false;
   } m;
   auto* map = app.add_subcommand("map", "map a mesh (file or id) onto the unit disk or sphere");
@@ -165,6 +167,9 @@ int main(int argc, char** argv) {
   map->add_option("--weights", m.weights, "area-preserving: file of one positive weight per input vertex");
   map->add_option("--markers", m.markers, "disk: center,boundary; sphere: v0,v1,vinf")->delimiter(',');
   map->add_flag("--cut-hole", m.cut, "disk: open a closed genus-0 mesh");
+  map->add_option("--hole-vertex", m.hole_vertex, "with --cut-hole: the vertex whose star is removed")
+      ->check(CLI::NonNegativeNumber);
+  map->add_option("--max-iterations", m.max_iterations, "Newton iterations")->check(CLI::PositiveNumber);
   map->add_option("--tolerance", m.tolerance, "solver tolerance (default: the method's)")->check(CLI::PositiveNumber);
   map->add_flag("--no-wait", m.no_wait, "print the job and return at once");
   map->callback([&] {
@@ -177,6 +182,11 @@ int main(int argc, char** argv) {
       s->set_t(m.t);
       s->set_cut_hole(m.cut);
       s->set_tolerance(m.tolerance);
+      s->set_max_iterations(m.max_iterations);
+      if (m.hole_vertex >= 0) {
+        s->set_has_hole_vertex(true);
+        s->set_hole_vertex(m.hole_vertex);
+      }
       for (int v : m.markers) s->add_markers(v);
       if (!m.output.empty()) {
         const std::string ext = std::filesystem::path(m.output).extension().string();
@@ -211,9 +221,27 @@ int main(int argc, char** argv) {
     };
   });
 
+  // Options of the Wasserstein transports, shared by distance and matrix.
+  struct TransportArgs {
+    double tolerance = 0;
+    bool refine = false, raw = false;
+    void add_to(CLI::App* cmd) {
+      cmd->add_option("--tolerance", tolerance, "wasserstein: the transports' max relative cell-mass error (default 1e-3)")
+          ->check(CLI::PositiveNumber);
+      cmd->add_flag("--refine-rotation", refine, "wasserstein: refine the best turn by exact evaluations");
+      cmd->add_flag("--raw", raw, "wasserstein: eq. 3.31 as it stands, without removing the quantization bias");
+    }
+    void set(pb::WassersteinOptions* w) const {
+      w->set_tolerance(tolerance);
+      w->set_refine_rotation(refine);
+      w->set_raw(raw);
+    }
+  };
   struct DistArgs {
     std::string a, b, method = "wasserstein", domain = "disk";
+    int center_a = -1, boundary_a = -1, center_b = -1, boundary_b = -1;
     bool cut = false, no_wait = false;
+    TransportArgs transport;
   } d;
   auto* dist = app.add_subcommand("distance", "shape distance between two meshes (files or ids)");
   dist->add_option("a", d.a, "first mesh")->required();
@@ -222,6 +250,11 @@ int main(int argc, char** argv) {
   dist->add_option("--domain", d.domain, "disk or sphere")->check(CLI::IsMember({"disk", "sphere"}));
   dist->add_flag("--cut-hole", d.cut, "open closed genus-0 meshes onto the disk");
   dist->add_flag("--no-wait", d.no_wait, "print the job and return at once");
+  dist->add_option("--center-a", d.center_a, "interior marker of the first mesh (sent to 0)");
+  dist->add_option("--boundary-a", d.boundary_a, "boundary marker of the first mesh (sent to 1)");
+  dist->add_option("--center-b", d.center_b, "interior marker of the second mesh");
+  dist->add_option("--boundary-b", d.boundary_b, "boundary marker of the second mesh");
+  d.transport.add_to(dist);
   dist->callback([&] {
     action = [&](Client& c) {
       pb::SubmitJobRequest r;
@@ -231,6 +264,13 @@ int main(int argc, char** argv) {
       s->set_method(distance_method(d.method));
       s->set_domain(domain_of(d.domain));
       s->set_cut_hole(d.cut);
+      if (d.center_a >= 0 || d.boundary_a >= 0 || d.center_b >= 0 || d.boundary_b >= 0) {
+        s->mutable_markers_a()->set_center(d.center_a);
+        s->mutable_markers_a()->set_boundary(d.boundary_a);
+        s->mutable_markers_b()->set_center(d.center_b);
+        s->mutable_markers_b()->set_boundary(d.boundary_b);
+      }
+      d.transport.set(s->mutable_wasserstein());
       bool done = false;
       const pb::Job j = run_job(c, g, r, d.no_wait, &done);
       if (!done) return print_submitted(g, j);
@@ -248,8 +288,9 @@ int main(int argc, char** argv) {
 
   struct MatrixArgs {
     std::vector<std::string> meshes;
-    std::string output, method = "wasserstein", domain = "disk", report;
+    std::string output, method = "wasserstein", domain = "disk", report, markers;
     bool cut = false, no_wait = false;
+    TransportArgs transport;
   } x;
   auto* mat = app.add_subcommand("matrix", "distance matrix over meshes (files or ids)");
   mat->add_option("meshes", x.meshes, "meshes")->required();
@@ -259,12 +300,39 @@ int main(int argc, char** argv) {
   mat->add_option("--domain", x.domain, "disk or sphere")->check(CLI::IsMember({"disk", "sphere"}));
   mat->add_flag("--cut-hole", x.cut, "open closed genus-0 meshes onto the disk");
   mat->add_flag("--no-wait", x.no_wait, "print the job and return at once");
+  mat->add_option("--markers", x.markers, "file of lines file,center_vertex,boundary_vertex (every mesh)");
+  x.transport.add_to(mat);
   mat->callback([&] {
     action = [&](Client& c) {
       if (x.output.empty() && !x.no_wait) throw Error(grpc::StatusCode::INVALID_ARGUMENT, "give -o D.csv or D.npy");
       pb::SubmitJobRequest r;
       pb::MatrixSpec* s = r.mutable_matrix();
       for (const std::string& f : x.meshes) s->add_meshes(mesh_id(c, f));
+      if (!x.markers.empty()) {
+        std::ifstream in(x.markers);
+        if (!in) throw Error(grpc::StatusCode::INVALID_ARGUMENT, "cannot read the markers file " + x.markers);
+        std::map<std::string, std::pair<int, int>> byname;
+        std::string line;
+        for (int n = 1; std::getline(in, line); ++n) {
+          if (line.empty() || line[0] == '#') continue;
+          const size_t c1 = line.find(','), c2 = line.find(',', c1 + 1);
+          int center = -1, boundary = -1;
+          if (c1 == std::string::npos || c2 == std::string::npos ||
+              std::sscanf(line.c_str() + c1 + 1, "%d", &center) != 1 || std::sscanf(line.c_str() + c2 + 1, "%d", &boundary) != 1)
+            throw Error(grpc::StatusCode::INVALID_ARGUMENT, x.markers + ":" + std::to_string(n) +
+                                                                ": expected file,center_vertex,boundary_vertex");
+          byname[line.substr(0, c1)] = {center, boundary};
+        }
+        for (const std::string& f : x.meshes) {
+          auto it = byname.find(f);
+          if (it == byname.end()) it = byname.find(std::filesystem::path(f).stem().string());
+          if (it == byname.end()) throw Error(grpc::StatusCode::INVALID_ARGUMENT, x.markers + " has no markers for " + f);
+          pb::DiskMarkers* mk = s->add_markers();
+          mk->set_center(it->second.first);
+          mk->set_boundary(it->second.second);
+        }
+      }
+      x.transport.set(s->mutable_wasserstein());
       s->set_method(distance_method(x.method));
       s->set_domain(domain_of(x.domain));
       s->set_cut_hole(x.cut);
@@ -286,6 +354,32 @@ int main(int argc, char** argv) {
           std::fprintf(stderr, "brenier: %zu pairs did not converge (written as nan)\n", rep["not_converged"].size());
       }
       return job_exit(j);
+    };
+  });
+
+  auto* meshes = app.add_subcommand("meshes", "list your meshes");
+  meshes->callback([&] {
+    action = [&](Client& c) {
+      nlohmann::json out = nlohmann::json::array();
+      for (const pb::Mesh& m : c.list_meshes()) {
+        if (g.json)
+          out.push_back({{"id", m.id()}, {"name", m.name()}, {"vertices", m.vertices()}, {"faces", m.faces()},
+                         {"class", pb::TopologyClass_Name(m.topology_class())}});
+        else
+          std::printf("%s %s %d vertices %s\n", m.id().c_str(), m.name().c_str(), m.vertices(),
+                      pb::TopologyClass_Name(m.topology_class()).c_str());
+      }
+      if (g.json) std::cout << out.dump(2) << std::endl;
+      return kOk;
+    };
+  });
+  std::string delete_id;
+  auto* del = app.add_subcommand("delete", "delete one of your meshes");
+  del->add_option("id", delete_id, "mesh id")->required();
+  del->callback([&] {
+    action = [&](Client& c) {
+      c.delete_mesh(delete_id);
+      return kOk;
     };
   });
 

@@ -91,6 +91,13 @@ jobs::MapRequest map_request(const pb::MapSpec& s) {
     r.boundary_marker = s.markers(1);
   }
   r.cut_hole = s.cut_hole();
+  if (s.has_hole_vertex()) {
+    if (!s.cut_hole()) invalid("hole_vertex goes with cut_hole");
+    r.hole_vertex = s.hole_vertex();
+    if (r.hole_vertex < 0) invalid("hole_vertex must be a vertex number");
+  }
+  if (s.max_iterations() < 0) invalid("max_iterations must be positive");
+  if (s.max_iterations() > 0) r.max_iterations = s.max_iterations();
   if (!(s.tolerance() >= 0) || !std::isfinite(s.tolerance())) invalid("the tolerance must be a positive number");
   r.tolerance = s.tolerance();
   r.weights.assign(s.weights().begin(), s.weights().end());
@@ -109,13 +116,26 @@ mesh::Format output_format(const std::string& f) {
   return *p;
 }
 
-jobs::ShapeRequest shape_request(pb::DistanceMethod method, pb::Domain domain, bool cut_hole) {
+template <class Spec>
+jobs::ShapeRequest shape_request(const Spec& s) {
   jobs::ShapeRequest r;
-  r.method = distance_method_name(method);
-  r.domain = domain_name(domain);
-  r.cut_hole = cut_hole;
+  r.method = distance_method_name(s.method());
+  r.domain = domain_name(s.domain());
+  r.cut_hole = s.cut_hole();
+  const pb::WassersteinOptions& w = s.wasserstein();
+  if (!(w.tolerance() >= 0) || !std::isfinite(w.tolerance())) invalid("the tolerance must be a positive number");
+  if (w.tolerance() > 0) r.tolerance = w.tolerance();
+  r.refine_rotation = w.refine_rotation();
+  r.raw = w.raw();
   r.shape_options();  // refuses what the core refuses
   return r;
+}
+
+// Markers as (center, boundary), or (-1, -1) when the message is absent.
+std::pair<int, int> markers_of(bool has, const pb::DiskMarkers& m) {
+  if (!has) return {-1, -1};
+  if (m.center() < 0 || m.boundary() < 0) invalid("markers are vertex numbers");
+  return {m.center(), m.boundary()};
 }
 
 pb::Artifact artifact(Store& store, const std::string& name, const std::string& media, const std::string& filename,
@@ -229,7 +249,8 @@ pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& r
     case pb::SubmitJobRequest::kDistance: {
       const pb::DistanceSpec& s = request.distance();
       kind = "distance";
-      shape_request(s.method(), s.domain(), s.cut_hole());
+      shape_request(s);
+      if (s.has_markers_a() != s.has_markers_b()) invalid("give markers for both meshes or neither");
       require_fits(mesh_of(s.a()), s.domain(), s.cut_hole());
       require_fits(mesh_of(s.b()), s.domain(), s.cut_hole());
       break;
@@ -237,7 +258,10 @@ pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& r
     case pb::SubmitJobRequest::kMatrix: {
       const pb::MatrixSpec& s = request.matrix();
       kind = "matrix";
-      shape_request(s.method(), s.domain(), s.cut_hole());
+      shape_request(s);
+      if (s.markers_size() != 0 && s.markers_size() != s.meshes_size())
+        invalid(std::to_string(s.markers_size()) + " markers for " + std::to_string(s.meshes_size()) +
+                " meshes (one per mesh, or none)");
       if (s.meshes_size() < 2) invalid("a distance matrix needs at least two meshes");
       if (s.meshes_size() > options_.max_matrix_meshes)
         fail(ErrorCode::kResourceExhausted, "a matrix job takes at most " + std::to_string(options_.max_matrix_meshes) +
@@ -435,11 +459,13 @@ pb::JobResult run_map_job(Context& c, const pb::MapSpec& s) {
 }
 
 pb::JobResult run_distance_job(Context& c, const pb::DistanceSpec& s) {
-  const jobs::ShapeRequest r = shape_request(s.method(), s.domain(), s.cut_hole());
+  const jobs::ShapeRequest r = shape_request(s);
   pb::Mesh ra, rb;
   const mesh::CleanMesh a = c.load(s.a(), &ra), b = c.load(s.b(), &rb);
-  distance::ShapeInput ia = jobs::shape_input(a, ra.name(), ra.name(), r);
-  distance::ShapeInput ib = jobs::shape_input(b, rb.name(), rb.name(), r);
+  const auto [ca, ba] = markers_of(s.has_markers_a(), s.markers_a());
+  const auto [cb, bb] = markers_of(s.has_markers_b(), s.markers_b());
+  distance::ShapeInput ia = jobs::shape_input(a, ra.name(), ra.name(), r, ca, ba);
+  distance::ShapeInput ib = jobs::shape_input(b, rb.name(), rb.name(), r, cb, bb);
   if (ia.name == ib.name) ib.name += " (b)";
   jobs::DistanceOutcome d = jobs::run_distance(ia, ib, r, hardware_threads(), c.sink());
   c.check();
@@ -464,7 +490,7 @@ pb::JobResult run_distance_job(Context& c, const pb::DistanceSpec& s) {
 // tiles; the tiles are assembled as `brenier-compute merge` does.
 pb::JobResult run_matrix_job(Context& c, const pb::MatrixSpec& s, const std::string& job_id) {
   const auto t0 = std::chrono::steady_clock::now();
-  const jobs::ShapeRequest r = shape_request(s.method(), s.domain(), s.cut_hole());
+  const jobs::ShapeRequest r = shape_request(s);
   const int n = s.meshes_size();
   std::vector<distance::ShapeInput> in(n);
   std::map<std::string, int> names;
@@ -472,7 +498,8 @@ pb::JobResult run_matrix_job(Context& c, const pb::MatrixSpec& s, const std::str
     c.check();
     pb::Mesh rec;
     const mesh::CleanMesh cm = c.load(s.meshes(k), &rec);
-    in[k] = jobs::shape_input(cm, rec.name(), rec.name(), r);
+    const auto [center, boundary] = markers_of(s.markers_size() > 0, s.markers_size() > 0 ? s.markers(k) : pb::DiskMarkers());
+    in[k] = jobs::shape_input(cm, rec.name(), rec.name(), r, center, boundary);
   });
   for (int k = 0; k < n; ++k) ++names[in[k].name];
   for (int k = 0; k < n; ++k)

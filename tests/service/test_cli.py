@@ -50,6 +50,19 @@ try:
     check(rc == 0 and len(rows) == 4 and rows[0] == "name,a.off,b.off,c.off", f"matrix CSV: {rc} {rows[:1]} {err!r}")
     rc, out, err = run("matrix", a, b, "-o", os.path.join(work, "D.npy"))
     check(rc == 0 and open(os.path.join(work, "D.npy"), "rb").read(6) == b"\x93NUMPY", f"matrix NPY: {rc} {err!r}")
+    rc, out, err = run("--json", "meshes")
+    listed = json.loads(out) if rc == 0 else []
+    check(rc == 0 and {m["name"] for m in listed} >= {"a.off", "b.off", "c.off"}, f"meshes: {rc} {err!r}")
+    rc, out, err = run("--json", "distance", a, b, "--center-a", "112", "--boundary-a", "14", "--center-b", "144",
+                       "--boundary-b", "16")
+    norm = json.loads(out)["normalization"] if rc == 0 else ""
+    check(rc == 0 and "marker" in norm, f"distance with markers: {rc} {norm!r} {err!r}")
+    rc, out, err = run("distance", a, b, "--center-a", "0", "--boundary-a", "14", "--center-b", "144", "--boundary-b", "16")
+    check(rc == 2 and "interior" in err, f"a boundary vertex as the centre: 2 {rc} {err!r}")
+    rc, out, err = run("delete", listed[0]["id"] if listed else "x")
+    check(rc == 0, f"delete: {rc} {err!r}")
+    rc, out, err = run("delete", "0" * 64)
+    check(rc == 2 and len(err.strip().splitlines()) == 1, f"deleting an unknown mesh: 2 {rc} {err!r}")
     rc, out, err = run("--json", "jobs")
     check(rc == 0 and len(json.loads(out)) >= 5, f"jobs: {rc}")
 

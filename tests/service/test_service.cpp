@@ -162,6 +162,27 @@ TEST(Service, DistanceAndMatrixRoundTripsGiveTheEnginesAnswer) {
   const auto report = nlohmann::json::parse(c.fetch(j.id()));
   EXPECT_EQ(report["distance"].get<double>(), j.result().distance());
 
+  // With markers (Def. 2.24): the centre vertex to 0 and the last (boundary) vertex to 1.
+  pb::SubmitJobRequest rm = r;
+  const int last_a = clean_of(hemisphere()).mesh.num_vertices() - 1, last_b = clean_of(bumped_disk()).mesh.num_vertices() - 1;
+  rm.mutable_distance()->mutable_markers_a()->set_center(0);
+  rm.mutable_distance()->mutable_markers_a()->set_boundary(last_a);
+  rm.mutable_distance()->mutable_markers_b()->set_center(0);
+  rm.mutable_distance()->mutable_markers_b()->set_boundary(last_b);
+  rm.mutable_distance()->mutable_wasserstein()->set_tolerance(1e-4);
+  const pb::Job jm = c.watch(c.submit(rm).id());
+  ASSERT_EQ(jm.state(), pb::SUCCEEDED) << jm.error().message();
+  jobs::ShapeRequest sm = sr;
+  sm.tolerance = 1e-4;
+  const jobs::DistanceOutcome marked =
+      jobs::run_distance(jobs::shape_input(clean_of(hemisphere()), "hemi", "hemi", sm, 0, last_a),
+                         jobs::shape_input(clean_of(bumped_disk()), "bump", "bump", sm, 0, last_b), sm, 2);
+  EXPECT_EQ(jm.result().distance(), marked.result.distance);
+  EXPECT_NE(nlohmann::json::parse(c.fetch(jm.id()))["normalization"].get<std::string>().find("marker"), std::string::npos);
+  pb::SubmitJobRequest half = r;  // markers for one mesh only
+  half.mutable_distance()->mutable_markers_a()->set_center(0);
+  EXPECT_EQ(code_of([&] { c.submit(half); }), grpc::StatusCode::INVALID_ARGUMENT);
+
   // A matrix (both methods): symmetric, zero diagonal, names, and the engine's values.
   for (pb::DistanceMethod method : {pb::OMT_LINEAR, pb::WASSERSTEIN}) {
     pb::SubmitJobRequest mr;
