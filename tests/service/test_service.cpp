@@ -491,7 +491,7 @@ TEST(Service, AMatrixKilledMidwayResumesFromItsFinishedTiles) {
   // Wait for the first finished tile (a "pairs" event), then kill.
   for (int k = 0; k < 3000; ++k) {
     const pb::Job j = c.get(job);
-    if (j.stage() == "pairs" || j.state() != pb::RUNNING && j.state() != pb::QUEUED) break;
+    if (j.stage() == "pairs" || (j.state() != pb::RUNNING && j.state() != pb::QUEUED)) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(5));
   }
   ASSERT_EQ(c.get(job).stage(), "pairs");
@@ -506,8 +506,9 @@ TEST(Service, AMatrixKilledMidwayResumesFromItsFinishedTiles) {
   ASSERT_EQ(done.state(), pb::SUCCEEDED) << done.error().message();
   EXPECT_EQ(done.attempts(), 2);
   // The assembled matrix is the engine's, tiles from both runs together.
-  const Eigen::MatrixXd expect = distance::assemble({distance::compute_tile(in, distance::MatrixOptions{
-                                                         .method = distance::Method::kWasserstein})});
+  distance::MatrixOptions mo;
+  mo.method = distance::Method::kWasserstein;
+  const Eigen::MatrixXd expect = distance::assemble({distance::compute_tile(in, mo)});
   std::istringstream csv(c2.fetch(job, "matrix"));
   std::string line;
   std::getline(csv, line);
@@ -652,7 +653,11 @@ TEST(Service, ListsArePaged) {
   ServerProcess server(temp_dir("svc-pages"));
   Client c = server.client();
   std::set<std::string> ids;
-  for (int k = 3; k < 8; ++k) ids.insert(c.upload_bytes(off_bytes(mesh::make_disk(k)), "d" + std::to_string(k)).id());
+  for (int k = 3; k < 8; ++k) {
+    std::string name = "d";
+    name += std::to_string(k);
+    ids.insert(c.upload_bytes(off_bytes(mesh::make_disk(k)), name).id());
+  }
   pb::ListMeshesRequest r;
   r.set_page_size(2);
   std::set<std::string> seen;
