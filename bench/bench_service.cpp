@@ -6,7 +6,7 @@
 //  3. progress events per Newton iteration seen by a watcher of an area-preserving map;
 //  4. the server's overhead on a map job against brenier-compute on the same mesh (MESH,
 //     default data/meshes/lion-head.off): submit to downloaded result, against the
-//     offline command's wall time, medians of 5.
+//     offline command's wall time, medians of 9.
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -169,7 +169,7 @@ int main(int argc, char** argv) {
       std::vector<double> served, offline;
       int events = 0, newton = 0;
       std::set<std::pair<std::string, int>> iterations;
-      for (int k = 0; k < 5; ++k) {
+      for (int k = 0; k < 9; ++k) {
         pb::SubmitJobRequest r;
         r.mutable_map()->set_mesh(m.id());
         r.mutable_map()->set_method(std::string(method) == "conformal" ? pb::CONFORMAL : pb::AREA_PRESERVING);
@@ -193,7 +193,7 @@ int main(int argc, char** argv) {
         offline.push_back(since(t1));
       }
       std::printf("map %s of %s (%d vertices): served %.3f s, brenier-compute %.3f s: overhead %+.1f %% "
-                  "(medians of 5); watcher saw %d events, %zu distinct Newton iterations of %d\n",
+                  "(medians of 9); watcher saw %d events, %zu distinct Newton iterations of %d\n",
                   method, std::filesystem::path(mesh_path).filename().c_str(), m.vertices(), median(served),
                   median(offline), 100 * (median(served) / median(offline) - 1), events, iterations.size(), newton);
     }

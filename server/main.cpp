@@ -17,6 +17,7 @@
 
 #include "auth.hpp"
 #include "common/error.hpp"
+#include "common/parallel.hpp"
 #include "manager.hpp"
 #include "service.hpp"
 
@@ -70,8 +71,6 @@ int serve(const Flags& f) {
   // Logs go to stderr (stdout stays free for whoever runs us), one line per event.
   spdlog::set_default_logger(spdlog::stderr_color_mt("brenierd"));
   spdlog::set_level(spdlog::level::from_str(f.log_level));
-  // OpenMP threads of concurrent jobs wait passively instead of spinning on the cores.
-  setenv("OMP_WAIT_POLICY", "passive", 0);
 
   brenier::server::Auth auth = f.tokens.empty() ? brenier::server::Auth() : brenier::server::Auth::from_file(f.tokens);
   std::shared_ptr<grpc::ServerCredentials> creds = grpc::InsecureServerCredentials();
@@ -133,6 +132,7 @@ int serve(const Flags& f) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  brenier::reexec_with_passive_openmp(argv);
   install_stop_handlers();
   CLI::App app{"brenierd: conformal maps, optimal-transport maps and shape distances as a gRPC service"};
   Flags f;

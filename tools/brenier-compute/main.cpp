@@ -7,6 +7,7 @@
 
 #include "commands.hpp"
 #include "common/error.hpp"
+#include "common/parallel.hpp"
 
 namespace {
 
@@ -37,6 +38,7 @@ int exit_code_for(brenier::ErrorCode code) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  brenier::reexec_with_passive_openmp(argv);
   CLI::App app{"brenier-compute: conformal and optimal-mass-transport maps of surfaces"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "brenier-compute 0.1.0");
