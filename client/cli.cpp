@@ -79,6 +79,20 @@ std::function<void(const pb::JobEvent&)> progress_printer(bool quiet) {
   };
 }
 
+// Meshes as a JSON array or one line each: id, name, vertices, class.
+void print_meshes(const std::vector<pb::Mesh>& meshes, bool json) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const pb::Mesh& m : meshes) {
+    if (json)
+      out.push_back({{"id", m.id()}, {"name", m.name()}, {"vertices", m.vertices()}, {"faces", m.faces()},
+                     {"class", pb::TopologyClass_Name(m.topology_class())}});
+    else
+      std::printf("%s %s %d vertices %s\n", m.id().c_str(), m.name().c_str(), m.vertices(),
+                  pb::TopologyClass_Name(m.topology_class()).c_str());
+  }
+  if (json) std::cout << out.dump(2) << std::endl;
+}
+
 int job_exit(const pb::Job& j) {
   switch (j.state()) {
     case pb::SUCCEEDED: return j.result().converged() ? kOk : kJobFailed;
@@ -134,17 +148,9 @@ int main(int argc, char** argv) {
   up->add_option("files", files, "mesh files")->required();
   up->callback([&] {
     action = [&](Client& c) {
-      nlohmann::json out = nlohmann::json::array();
-      for (const std::string& f : files) {
-        const pb::Mesh m = c.upload(f);
-        if (g.json)
-          out.push_back({{"id", m.id()}, {"name", m.name()}, {"vertices", m.vertices()}, {"faces", m.faces()},
-                         {"class", pb::TopologyClass_Name(m.topology_class())}});
-        else
-          std::printf("%s %s %d vertices %s\n", m.id().c_str(), m.name().c_str(), m.vertices(),
-                      pb::TopologyClass_Name(m.topology_class()).c_str());
-      }
-      if (g.json) std::cout << out.dump(2) << std::endl;
+      std::vector<pb::Mesh> uploaded;
+      for (const std::string& f : files) uploaded.push_back(c.upload(f));
+      print_meshes(uploaded, g.json);
       return kOk;
     };
   });
@@ -360,16 +366,7 @@ int main(int argc, char** argv) {
   auto* meshes = app.add_subcommand("meshes", "list your meshes");
   meshes->callback([&] {
     action = [&](Client& c) {
-      nlohmann::json out = nlohmann::json::array();
-      for (const pb::Mesh& m : c.list_meshes()) {
-        if (g.json)
-          out.push_back({{"id", m.id()}, {"name", m.name()}, {"vertices", m.vertices()}, {"faces", m.faces()},
-                         {"class", pb::TopologyClass_Name(m.topology_class())}});
-        else
-          std::printf("%s %s %d vertices %s\n", m.id().c_str(), m.name().c_str(), m.vertices(),
-                      pb::TopologyClass_Name(m.topology_class()).c_str());
-      }
-      if (g.json) std::cout << out.dump(2) << std::endl;
+      print_meshes(c.list_meshes(), g.json);
       return kOk;
     };
   });
