@@ -11,10 +11,13 @@
 #include <sstream>
 #include <thread>
 
+#include "common/error.hpp"
 #include "distance/matrix.hpp"
 #include "jobs/jobs.hpp"
 #include "mesh/io.hpp"
 #include "mesh/shapes.hpp"
+#include "mesh/topology.hpp"
+#include "mesh/validate.hpp"
 #include "reflection.grpc.pb.h"
 #include "server_process.hpp"
 
@@ -647,6 +650,66 @@ TEST(Service, ReflectionListsTheServices) {
   while (stream->Read(&resp)) {
   }
   EXPECT_TRUE(stream->Finish().ok());
+}
+
+// Every real mesh of data/meshes (scripts/fetch-data.sh), defective ones included, uploaded
+// to one server: accepted exactly when the offline reader and validator accept it, with the
+// same vertex count and class; refused with the validator's or reader's own message; and the
+// server answers to the end. Then real maps through the service against the engine.
+TEST(ServiceRealMeshes, UploadsAgreeWithTheOfflineValidatorAndMapsWithTheEngine) {
+  const std::string dir = BRENIER_TEST_DATA_DIR;
+  if (!std::filesystem::exists(dir + "/lion-head.off")) GTEST_SKIP() << "run scripts/fetch-data.sh";
+  ServerProcess server(temp_dir("svc-real"));
+  Client c = server.client();
+  int accepted = 0, refused = 0;
+  for (const auto& e : std::filesystem::directory_iterator(dir)) {
+    const std::string path = e.path().string(), name = e.path().filename().string();
+    if (!e.is_regular_file() || name[0] == '.') continue;
+    std::string expect_error;
+    mesh::CleanMesh cm;
+    try {
+      cm = mesh::load_mesh(path);
+      mesh::require_valid(cm, name);
+    } catch (const ::brenier::Error& x) {
+      expect_error = x.what();
+    }
+    try {
+      const pb::Mesh m = c.upload(path);
+      ++accepted;
+      EXPECT_EQ(expect_error, "") << name << " was accepted";
+      EXPECT_EQ(m.vertices(), cm.mesh.num_vertices()) << name;
+      const mesh::MeshClass cls = mesh::compute_topology(cm.mesh).mesh_class;
+      EXPECT_EQ(m.topology_class(), cls == mesh::MeshClass::kDisk     ? pb::TOPOLOGICAL_DISK
+                                    : cls == mesh::MeshClass::kSphere ? pb::TOPOLOGICAL_SPHERE
+                                                                      : pb::OTHER)
+          << name;
+    } catch (const client::Error& x) {
+      ++refused;
+      EXPECT_EQ(x.code(), grpc::StatusCode::INVALID_ARGUMENT) << name << ": " << x.what();
+      EXPECT_FALSE(expect_error.empty()) << name << " was refused: " << x.what();
+      // The message names the same problem (the offline one starts with the path, ours with the name).
+      const std::string problem = expect_error.substr(expect_error.find(": ") + 2);
+      EXPECT_NE(std::string(x.what()).find(problem), std::string::npos) << name << ": " << x.what() << " vs " << expect_error;
+    }
+  }
+  EXPECT_GT(accepted, 100);
+  EXPECT_GT(refused, 0);
+  std::printf("%d real meshes accepted, %d refused with the validator's message\n", accepted, refused);
+  EXPECT_EQ(server.health(), 1);
+  // Real maps through the service, bit-identical to the engine: a face scan onto the disk
+  // area-preservingly, and a closed model onto the sphere.
+  for (const auto& [file, domain, method] : {std::tuple{"lion-head.off", pb::DISK, pb::AREA_PRESERVING},
+                                             std::tuple{"bear.off", pb::SPHERE, pb::CONFORMAL}}) {
+    const std::string path = dir + "/" + file;
+    const pb::Job j = c.watch(c.submit(map_spec(c.upload(path).id(), domain, method)).id());
+    ASSERT_EQ(j.state(), pb::SUCCEEDED) << file << ": " << j.error().message();
+    jobs::MapRequest r;
+    r.domain = domain == pb::SPHERE ? "sphere" : "disk";
+    r.method = method == pb::AREA_PRESERVING ? "area-preserving" : "conformal";
+    const jobs::MapOutcome local = jobs::run_map(mesh::load_mesh(path), file, r);
+    EXPECT_EQ(c.fetch(j.id()), jobs::map_mesh_bytes(local, mesh::Format::kObj)) << file;
+    EXPECT_EQ(nlohmann::json::parse(c.fetch(j.id(), "report"))["quality"]["flipped_faces"], 0) << file;
+  }
 }
 
 TEST(Service, ListsArePaged) {
