@@ -166,7 +166,10 @@ Manager::Manager(Store& store, const ManagerOptions& options) : store_(store), o
 Manager::~Manager() {
   if (scheduler_) {
     scheduler_->stop_taking();
-    for (auto& [id, l] : live_) l->interrupted = true;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      for (auto& [id, l] : live_) l->interrupted = true;
+    }
     scheduler_->join();
   }
 }
@@ -191,13 +194,12 @@ void Manager::recover() {
   }
 }
 
-pb::Mesh Manager::add_mesh(const std::string& tenant, const pb::UploadMeshRequest::Header& h, const std::string& temp) {
+pb::Mesh Manager::add_mesh(const std::string& tenant, const pb::UploadMeshRequest::Header& h, const std::string& bytes) {
   std::optional<mesh::Format> format;
   if (!h.format().empty()) {
     format = mesh::parse_format(h.format());
     if (!format) invalid("unknown format '" + h.format() + "' (obj, off, ply, stl, freesurfer)");
   }
-  const std::string bytes = read_whole(temp);
   if (!format) format = mesh::detect_format(h.name(), std::string_view(bytes).substr(0, 256));
   mesh::ReadLimits limits;
   limits.max_bytes = options_.max_upload_bytes;
@@ -222,7 +224,7 @@ pb::Mesh Manager::add_mesh(const std::string& tenant, const pb::UploadMeshReques
   m.set_genus(t.genus);
   *m.mutable_created() = TimeUtil::GetCurrentTime();
   for (const auto& p : cm.report.problems) m.add_warnings(p.message);
-  store_.commit_blob(Store::Blob::kMesh, temp, h.sha256());
+  store_.put_blob(Store::Blob::kMesh, bytes, h.sha256());
   return store_.put_mesh(tenant, m);
 }
 
@@ -313,17 +315,20 @@ pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& r
 pb::Job Manager::get(const std::string& tenant, const std::string& id) {
   auto job = store_.get_job(tenant, id);
   if (!job) fail(ErrorCode::kNotFound, "no job " + id);
+  return with_progress(std::move(*job));
+}
+
+pb::Job Manager::with_progress(pb::Job stored) {
+  if (is_terminal(stored.state())) return stored;
   std::shared_ptr<LiveJob> l;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    auto it = live_.find(id);
+    auto it = live_.find(stored.id());
     if (it != live_.end()) l = it->second;
   }
-  if (l) {
-    std::lock_guard<std::mutex> lock(l->mutex);
-    if (!is_terminal(job->state())) return l->job;
-  }
-  return *job;
+  if (!l) return stored;
+  std::lock_guard<std::mutex> lock(l->mutex);
+  return l->job;
 }
 
 std::shared_ptr<LiveJob> Manager::live(const std::string& tenant, const std::string& id, pb::Job& current) {
@@ -435,9 +440,7 @@ struct Context {
     if (!m || !store.has_blob(Store::Blob::kMesh, id)) invalid("mesh " + id + " was deleted");
     if (record) *record = *m;
     const auto format = mesh::parse_format(m->format());
-    std::ifstream in(store.blob_path(Store::Blob::kMesh, id), std::ios::binary);
-    const std::string bytes(std::istreambuf_iterator<char>(in), {});
-    return mesh::clean(mesh::read_soup(bytes, *format));
+    return mesh::clean(mesh::read_soup(read_whole(store.blob_path(Store::Blob::kMesh, id)), *format));
   }
 };
 
@@ -616,6 +619,15 @@ void Manager::run(const std::string& id) {
     std::lock_guard<std::mutex> lock(running_mutex_);
     ++running_;
   }
+  // However this run ends (a store failure included), it stops counting as running.
+  struct Running {
+    Manager& m;
+    ~Running() {
+      std::lock_guard<std::mutex> lock(m.running_mutex_);
+      --m.running_;
+      m.running_changed_.notify_all();
+    }
+  } running_guard{*this};
   publish(*l, state_event(job));
   spdlog::info("job {} ({}) started, attempt {}", id, job.kind(), job.attempts());
   const auto t0 = std::chrono::steady_clock::now();
@@ -672,9 +684,6 @@ void Manager::run(const std::string& id) {
                  std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
                  error ? ": " : "", error ? error->what() : "");
   }
-  std::lock_guard<std::mutex> lock(running_mutex_);
-  --running_;
-  running_changed_.notify_all();
 }
 
 }  // namespace brenier::server

@@ -48,13 +48,15 @@ class Manager {
   /// Requeues the jobs an earlier run left queued or running (a running one runs again).
   void recover();
 
-  /// Turns a finished upload (the bytes in `temp`, already checked against the declared size
-  /// and SHA-256) into the tenant's mesh: parsed, validated (INVALID_ARGUMENT with the
-  /// validator's message), vertex limit (RESOURCE_EXHAUSTED), then stored.
-  pb::Mesh add_mesh(const std::string& tenant, const pb::UploadMeshRequest::Header& header, const std::string& temp);
+  /// Turns a finished upload (`bytes`, already checked against the declared size and SHA-256)
+  /// into the tenant's mesh: parsed, validated (INVALID_ARGUMENT with the validator's
+  /// message), vertex limit (RESOURCE_EXHAUSTED), then stored.
+  pb::Mesh add_mesh(const std::string& tenant, const pb::UploadMeshRequest::Header& header, const std::string& bytes);
 
   pb::Job submit(const std::string& tenant, const pb::SubmitJobRequest& request);
   pb::Job get(const std::string& tenant, const std::string& id);
+  /// A job as stored, with the live stage and fraction while it is queued or running.
+  pb::Job with_progress(pb::Job stored);
   pb::Job cancel(const std::string& tenant, const std::string& id);
   /// The live state of a job of the tenant; null when it has finished (read the store).
   /// NOT_FOUND for another tenant's or an unknown job.

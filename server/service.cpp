@@ -28,15 +28,6 @@ bool is_sha256(const std::string& s) {
   return true;
 }
 
-// Removes a temporary file unless it was made a blob.
-struct TempFile {
-  std::string path;
-  ~TempFile() {
-    std::error_code ec;
-    std::filesystem::remove(path, ec);
-  }
-};
-
 }  // namespace
 
 grpc::Status Service::UploadMesh(grpc::ServerContext* ctx, grpc::ServerReader<pb::UploadMeshRequest>* reader,
@@ -55,9 +46,10 @@ grpc::Status Service::UploadMesh(grpc::ServerContext* ctx, grpc::ServerReader<pb
     if (h.size_bytes() > limit)
       fail(ErrorCode::kResourceExhausted, "the upload is " + std::to_string(h.size_bytes()) +
                                               " bytes; this server takes at most " + std::to_string(limit));
-    TempFile temp{manager_.store().temp_path()};
-    std::ofstream os(temp.path, std::ios::binary | std::ios::trunc);
-    if (!os) fail(ErrorCode::kInternal, "cannot open a temporary file");
+    // The bytes are kept in memory (they are parsed whole; the declared size is within the
+    // limit) and stored as a blob only once they have checked out.
+    std::string bytes;
+    bytes.reserve(static_cast<size_t>(std::min<int64_t>(h.size_bytes(), int64_t{64} << 20)));
     Sha256 sha;
     int64_t received = 0;
     while (reader->Read(&msg)) {
@@ -68,16 +60,14 @@ grpc::Status Service::UploadMesh(grpc::ServerContext* ctx, grpc::ServerReader<pb
       if (received > h.size_bytes())
         invalid("more bytes than the declared " + std::to_string(h.size_bytes()));
       sha.update(c);
-      if (!os.write(c.data(), static_cast<std::streamsize>(c.size()))) fail(ErrorCode::kInternal, "cannot write the upload");
+      bytes += c;
     }
     if (ctx->IsCancelled()) fail(ErrorCode::kCancelled, "the client cancelled the upload");
-    if (!os.flush()) fail(ErrorCode::kInternal, "cannot write the upload");
-    os.close();
     if (received != h.size_bytes())
       invalid("truncated upload: " + std::to_string(received) + " of " + std::to_string(h.size_bytes()) + " bytes");
     const std::string got = sha.hex();
     if (got != h.sha256()) invalid("SHA-256 mismatch: the header says " + h.sha256() + ", the bytes hash to " + got);
-    *reply = manager_.add_mesh(tenant, h, temp.path);
+    *reply = manager_.add_mesh(tenant, h, bytes);
     spdlog::info("mesh {} '{}' uploaded by '{}': {} vertices", reply->id().substr(0, 12), reply->name(), tenant,
                  reply->vertices());
     return grpc::Status::OK;
@@ -130,7 +120,7 @@ grpc::Status Service::ListJobs(grpc::ServerContext* ctx, const pb::ListJobsReque
     const std::string tenant = auth_.tenant(ctx);
     std::string next;
     for (auto& j : manager_.store().list_jobs(tenant, req->state(), req->page_token(), page_size(req->page_size()), next))
-      *reply->add_jobs() = is_terminal(j.state()) ? std::move(j) : manager_.get(tenant, j.id());
+      *reply->add_jobs() = manager_.with_progress(std::move(j));
     reply->set_next_page_token(next);
     return grpc::Status::OK;
   });

@@ -205,8 +205,8 @@ void Store::commit_blob(Blob kind, const std::string& temp, const std::string& s
   fsync_path(fs::path(path).parent_path().string(), true);
 }
 
-std::string Store::put_blob(Blob kind, const std::string& bytes) {
-  const std::string sha = sha256_hex(bytes);
+std::string Store::put_blob(Blob kind, const std::string& bytes, const std::string& known_sha) {
+  const std::string sha = known_sha.empty() ? sha256_hex(bytes) : known_sha;
   if (has_blob(kind, sha)) return sha;
   const std::string temp = temp_path();
   {

@@ -38,13 +38,12 @@ class Store {
   /// names them) and job results (kept with their jobs). Separate, so that deleting a mesh
   /// whose bytes happen to equal a result (a downloaded map uploaded again) keeps the result.
   enum class Blob { kMesh, kResult };
-  /// A fresh path under DIR/tmp for a file about to become a blob.
+  /// A fresh path under DIR/tmp for a scratch file.
   std::string temp_path();
-  /// Makes the finished file at `temp` the blob `sha256` (fsync, then rename; a blob that is
-  /// already there is kept and `temp` removed).
-  void commit_blob(Blob kind, const std::string& temp, const std::string& sha256);
-  /// Writes `bytes` as a blob and returns its SHA-256.
-  std::string put_blob(Blob kind, const std::string& bytes);
+  /// Writes `bytes` as a blob (a temporary file, fsync, rename: whole or absent after a
+  /// crash; a blob already there is kept) and returns its SHA-256, computed unless the
+  /// caller already has it.
+  std::string put_blob(Blob kind, const std::string& bytes, const std::string& sha256 = "");
   std::string blob_path(Blob kind, const std::string& sha256) const;
   bool has_blob(Blob kind, const std::string& sha256) const;
 
@@ -85,6 +84,7 @@ class Store {
 
  private:
   void exec(const char* sql);
+  void commit_blob(Blob kind, const std::string& temp, const std::string& sha256);
   /// A reader connection, locked for the caller: WAL lets reads run beside the one writer,
   /// so a GetJob or a submission's mesh lookup never waits behind a job's commit.
   std::unique_lock<std::mutex> reader(Connection*& c);
