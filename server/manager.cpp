@@ -357,7 +357,10 @@ pb::Job Manager::cancel(const std::string& tenant, const std::string& id) {
     }
     current = l->job;
   }
-  if (cancelled_now) finish(l, current);
+  if (cancelled_now) {
+    scheduler_->remove(id);  // its place in the queue is free at once
+    finish(l, current);
+  }
   spdlog::info("job {} cancel requested", id);
   return current;
 }

@@ -44,6 +44,11 @@ void Scheduler::enqueue(const std::string& id) {
   cv_.notify_one();
 }
 
+void Scheduler::remove(const std::string& id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::erase(queue_, id);
+}
+
 int Scheduler::queued() {
   std::lock_guard<std::mutex> lock(mutex_);
   return static_cast<int>(queue_.size());

@@ -26,6 +26,8 @@ class Scheduler {
   bool try_enqueue(const std::string& job_id);
   /// Queues a job whatever the queue's length (jobs accepted before a restart).
   void enqueue(const std::string& job_id);
+  /// Takes a queued job out of the queue (cancelled before it started), freeing its place.
+  void remove(const std::string& job_id);
   /// Runs task(k) for k in [0, n) on this thread and any idle worker; returns when all have
   /// finished. After a task throws no new one starts, and the exception of the lowest index
   /// is rethrown. Called from inside a job.

@@ -307,8 +307,10 @@ TEST(Service, FullQueueUnfinishedResultsAndBadSpecsGetTheirStatus) {
   EXPECT_EQ(code_of([&] { c.submit(map_spec(small, pb::DISK, pb::CONFORMAL)); }),
             grpc::StatusCode::RESOURCE_EXHAUSTED);
   EXPECT_EQ(code_of([&] { c.fetch(running.id()); }), grpc::StatusCode::FAILED_PRECONDITION);
-  // A queued job cancelled never runs.
+  // A queued job cancelled never runs, and frees its place in the queue at once.
   EXPECT_EQ(c.cancel(queued.id()).state(), pb::CANCELLED);
+  const pb::Job refill = c.submit(map_spec(small, pb::DISK, pb::CONFORMAL));
+  EXPECT_EQ(c.cancel(refill.id()).state(), pb::CANCELLED);
   c.cancel(running.id());
   // Specs that cannot run.
   EXPECT_EQ(code_of([&] { c.submit(map_spec(std::string(64, 'a'), pb::DISK, pb::CONFORMAL)); }),
