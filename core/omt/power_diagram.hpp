@@ -116,4 +116,14 @@ class PowerDiagrams {
   mutable std::vector<int> start_triangle_;
 };
 
+namespace detail {
+/// The regular triangulation's in-circle test on weighted points {x, y, weight}: the side
+/// (+1, 0, -1, as CGAL's Oriented_side) of t's power circle against the one through p, q, r
+/// (counter-clockwise). `power_side` is what the triangulations here run (a double-precision
+/// filter, CGAL's exact predicate when the filter cannot decide); `power_side_exact` is
+/// CGAL's predicate alone. Exposed for the tests that hold the two equal.
+int power_side(const double p[3], const double q[3], const double r[3], const double t[3]);
+int power_side_exact(const double p[3], const double q[3], const double r[3], const double t[3]);
+}  // namespace detail
+
 }  // namespace brenier::omt

@@ -88,6 +88,76 @@ TEST(PowerCells, MassesTileTheDomainAndEdgesAreConsistent) {
   }
 }
 
+TEST(PowerCells, DegenerateAndNearDegenerateGridsGetTheirExactCells) {
+  // A square grid with equal power weights makes every four neighbouring sites cocircular:
+  // the in-circle determinant is exactly 0, and jittered by one unit of round-off it is
+  // below any floating-point filter, so the regular triangulation must take its exact
+  // predicate every time (the double-precision filter may only answer clear cases).
+  // Either way each site's cell is its grid square.
+  const int g = 40;
+  const double side = 2.0 / g;
+  for (double jitter : {0.0, 1e-16, 1e-13}) {
+    std::mt19937 rng(7);
+    std::uniform_real_distribution<double> U(-1.0, 1.0);
+    Points y(g * g, 2);
+    for (int a = 0; a < g; ++a)
+      for (int b = 0; b < g; ++b)
+        y.row(a * g + b) << -1 + side * (a + 0.5) + jitter * U(rng), -1 + side * (b + 0.5) + jitter * U(rng);
+    Eigen::VectorXd h = -0.5 * y.rowwise().squaredNorm();
+    auto c = omt::power_cells(Domain::square(1.0), y, h);
+    EXPECT_EQ(c.empty_cells, 0) << jitter;
+    EXPECT_LT((c.mass.array() - side * side).abs().maxCoeff(), 1e-12 + 4 * jitter) << jitter;
+    // 2 g (g - 1) grid edges of length `side`; the diagonals of the cocircular squares are
+    // dual edges of length 0 (or ~jitter) and carry no mass.
+    int full = 0;
+    for (const auto& e : c.edges) full += std::abs(e.length - side) < 1e-9;
+    EXPECT_EQ(full, 2 * g * (g - 1)) << jitter;
+  }
+}
+
+TEST(PowerCells, TheFilteredInCircleTestAgreesWithTheExactOneNearDegeneracy) {
+  // Quadruples on a common power circle (t's side exactly 0 in real numbers), then moved
+  // off it by 1e-17 .. 1e-9 of the scale, at scales 1e-6 .. 1e3 and offsets from the origin
+  // up to 1e3 times the scale: the double-precision filter must answer only where its
+  // answer is the exact one.
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> U(0.0, 1.0);
+  int disagreements = 0;
+  for (int k = 0; k < 200000; ++k) {
+    const double scale = std::pow(10.0, -6 + 9 * U(rng));
+    const double cx = scale * std::pow(10.0, 3 * U(rng)) * (U(rng) - 0.5), cy = scale * (U(rng) - 0.5);
+    const double w0 = scale * scale * (U(rng) - 0.5);  // common weight: same power circle
+    const double radius = scale * (0.5 + U(rng));
+    double a[4];
+    for (double& x : a) x = 2 * std::numbers::pi * U(rng);
+    std::sort(a, a + 3);  // p, q, r counter-clockwise
+    const double off = k % 5 == 0 ? 0.0 : scale * std::pow(10.0, -17 + 8 * U(rng)) * (U(rng) - 0.5);
+    auto on_circle = [&](double angle, double extra, double* out) {
+      out[0] = cx + (radius + extra) * std::cos(angle);
+      out[1] = cy + (radius + extra) * std::sin(angle);
+      out[2] = w0;
+    };
+    double p[3], q[3], r[3], t[3];
+    on_circle(a[0], 0, p), on_circle(a[1], 0, q), on_circle(a[2], 0, r), on_circle(a[3], off, t);
+    disagreements += omt::detail::power_side(p, q, r, t) != omt::detail::power_side_exact(p, q, r, t);
+  }
+  EXPECT_EQ(disagreements, 0);
+  // Exactly cocircular in doubles: lattice points of x^2 + y^2 = 25, scaled by powers of
+  // two and moved by dyadic offsets, with one common weight: the answer is exactly 0.
+  const double lattice[][2] = {{5, 0}, {3, 4}, {0, 5}, {-4, 3}, {-5, 0}, {-3, -4}, {4, -3}};
+  for (int e = -40; e <= 20; e += 4)
+    for (double shift : {0.0, 0.75, 1024.0}) {
+      const double s = std::ldexp(1.0, e), w = 3 * s * s;
+      auto at = [&](int i, double* out) {
+        out[0] = shift + s * lattice[i][0], out[1] = -shift + s * lattice[i][1], out[2] = w;
+      };
+      double p[3], q[3], r[3], t[3];
+      at(0, p), at(1, q), at(3, r), at(5, t);
+      EXPECT_EQ(omt::detail::power_side_exact(p, q, r, t), 0) << e << " " << shift;
+      EXPECT_EQ(omt::detail::power_side(p, q, r, t), 0) << e << " " << shift;
+    }
+}
+
 TEST(PowerCells, RefusesCoincidentSites) {
   Points y(3, 2);
   y << 0, 0, 0.5, 0, 0, 0;
