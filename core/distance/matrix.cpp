@@ -15,6 +15,7 @@
 #include "common/error.hpp"
 #include "common/check.hpp"
 #include "common/parallel.hpp"
+#include "common/version.hpp"
 
 namespace brenier::distance {
 
@@ -57,7 +58,7 @@ std::string matrix_fingerprint(const std::vector<ShapeInput>& shapes, const Matr
   char buf[256];
   std::snprintf(buf, sizeof buf, "%s;%s;quad=%dx%d;ktol=%.17g;otol=%.17g;wtol=%.17g", method_name(opt.method),
                 s.sphere ? "sphere" : "disk", s.quadrature.rings, s.quadrature.angles, s.conformal_tolerance, s.omt_tolerance, s.transport_tolerance);
-  std::string out = buf;
+  std::string out = buf + std::string(";engine=") + kNumericsVersion;
   if (opt.method == Method::kWasserstein) {
     std::snprintf(buf, sizeof buf, ";refine=%d;debias=%d", opt.wasserstein.refine_rotation ? 1 : 0,
                   opt.wasserstein.debias ? 1 : 0);

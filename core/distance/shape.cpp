@@ -16,6 +16,7 @@
 
 #include "common/error.hpp"
 #include "common/hash.hpp"
+#include "common/version.hpp"
 #include "distance/distance.hpp"
 #include "mesh/geometry.hpp"
 #include "omt/area_preserving.hpp"
@@ -57,7 +58,7 @@ std::string ShapeOptions::fingerprint() const {
 
 std::string shape_key(const mesh::TriMesh& m, const ShapeOptions& opt) {
   Sha256 h;
-  h.update("brenier-shape-v1\n" + opt.fingerprint() + "\n");
+  h.update(std::string("brenier-shape-v") + kNumericsVersion + "\n" + opt.fingerprint() + "\n");
   const long long counts[2] = {m.V.rows(), m.F.rows()};
   h.update(counts, sizeof counts);
   h.update(m.V.data(), sizeof(double) * m.V.size());

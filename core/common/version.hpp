@@ -1,0 +1,12 @@
+// The version of the numbers brenier computes.
+#pragma once
+
+namespace brenier {
+
+/// Bumped whenever a change alters the bits of any result (a solver's path, a tolerance, a
+/// predicate): per-shape results cached by content hash and matrix tiles carry it, so that
+/// those of an older engine are neither reused after an upgrade nor merged with newer tiles.
+/// 2: the OT solver refactors its preconditioner by the iterations spent on it.
+inline constexpr const char* kNumericsVersion = "2";
+
+}  // namespace brenier
