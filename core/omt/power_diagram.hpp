@@ -114,6 +114,14 @@ class PowerDiagrams {
   // only touched by the thread integrating that cell, and depends only on that cell's
   // history, so diagrams stay identical for any number of threads.
   mutable std::vector<int> start_triangle_;
+  // The last regular triangulation that held every site, kept so that the next heights
+  // (a Newton step away) are reached by edge flips instead of a new triangulation.
+  struct Triangulation;
+  mutable std::unique_ptr<Triangulation> last_;
+
+ public:
+  ~PowerDiagrams();
+  PowerDiagrams(PowerDiagrams&&) noexcept;
 };
 
 namespace detail {

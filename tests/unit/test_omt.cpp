@@ -158,6 +158,48 @@ TEST(PowerCells, TheFilteredInCircleTestAgreesWithTheExactOneNearDegeneracy) {
     }
 }
 
+TEST(PowerCells, DiagramsUpdatedByFlipsEqualDiagramsBuiltAnew) {
+  // One PowerDiagrams object carries its regular triangulation from one set of heights to
+  // the next by edge flips; every diagram must equal the one built from nothing, including
+  // after steps that hide sites (then if_none_hidden must say so) and large jumps.
+  const int n = 3000;
+  Points y = random_in_disk(n, 21, 1.0);
+  std::mt19937 rng(5);
+  std::normal_distribution<double> N(0.0, 1.0);
+  const omt::PowerDiagrams diagrams(Domain::unit_disk(), y);
+  Eigen::VectorXd h = -0.5 * y.rowwise().squaredNorm();
+  int hidden_steps = 0, flipped_steps = 0;
+  for (int step = 0; step < 40; ++step) {
+    // Smooth moves (a Newton step's) of growing size, and now and then site-scale noise.
+    Eigen::VectorXd next = h;
+    const double a = 0.004 * (step % 10 + 1), noise = step % 4 == 3 ? 3e-4 : 0.0;
+    const double kx = N(rng), ky = N(rng);
+    for (int i = 0; i < n; ++i)
+      next[i] += a * std::sin(3 * kx * y(i, 0) + 2 * ky * y(i, 1)) * y.row(i).squaredNorm() + noise * N(rng);
+    const omt::PowerCells fresh = omt::power_cells(Domain::unit_disk(), y, next);
+    const std::optional<omt::PowerCells> kept = diagrams.if_none_hidden(next);
+    if (!kept) {  // a hidden site: its cell is empty however the diagram is built
+      ++hidden_steps;
+      EXPECT_GT(fresh.empty_cells, 0) << step;
+      continue;  // the object keeps its last triangulation, as the line search does
+    }
+    ++flipped_steps;
+    EXPECT_EQ(kept->empty_cells, fresh.empty_cells) << step;
+    EXPECT_EQ(kept->mass, fresh.mass) << step;
+    ASSERT_EQ(kept->edges.size(), fresh.edges.size()) << step;
+    for (size_t k = 0; k < fresh.edges.size(); ++k) {
+      EXPECT_EQ(kept->edges[k].i, fresh.edges[k].i);
+      EXPECT_EQ(kept->edges[k].j, fresh.edges[k].j);
+      EXPECT_EQ(kept->edges[k].length, fresh.edges[k].length);
+    }
+    const omt::PowerCells all = diagrams(next);
+    EXPECT_EQ(all.mass, fresh.mass) << step;
+    h = next;
+  }
+  EXPECT_GT(hidden_steps, 0);
+  EXPECT_GT(flipped_steps, 10);
+}
+
 TEST(PowerCells, RefusesCoincidentSites) {
   Points y(3, 2);
   y << 0, 0, 0.5, 0, 0, 0;
