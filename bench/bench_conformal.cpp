@@ -195,6 +195,13 @@ mesh::TriMesh peel(mesh::TriMesh m, int count) {
 
 int main(int argc, char** argv) {
   std::string data = argc > 1 ? argv[1] : BRENIER_DATA_DIR;
+  // `bench_conformal DATA --write-peeled FILE`: only write the ~100K-vertex disk, for timing
+  // it through `brenier-compute map FILE --json` (seconds.map).
+  if (argc > 3 && std::string(argv[2]) == "--write-peeled") {
+    mesh::TriMesh big = mesh::subdivide_midpoint(mesh::subdivide_midpoint(mesh::load_mesh(data + "/lion-head.off").mesh));
+    mesh::write_mesh_file(argv[3], peel(big, 100000));
+    return 0;
+  }
   std::printf("| mesh | vertices | method | seconds | flipped faces | angle mean (deg) | p95 | max | note |\n");
   std::printf("| --- | --- | --- | --- | --- | --- | --- | --- | --- |\n");
   struct DiskCase {

@@ -346,19 +346,24 @@ void integrate_density(const LabelledPolygon& P, const DensityMesh& dm, const Ve
     const Vec2 t[3] = {dm.vertices.row(dm.faces(f, 0)), dm.vertices.row(dm.faces(f, 1)),
                        dm.vertices.row(dm.faces(f, 2))};
     // The common cases without clipping: the triangle inside the cell (Q = the triangle,
-    // whose sides are no dual edges) or the cell inside the triangle (Q = P).
-    bool triangle_inside = true, cell_inside = true;
-    for (size_t e = 0; e < P.p.size() && triangle_inside; ++e)
-      for (int v = 0; v < 3 && triangle_inside; ++v)
-        triangle_inside = P.line[e].head<2>().dot(t[v]) + P.line[e].z() >= 0;
-    for (int e = 0; e < 3 && cell_inside && !triangle_inside; ++e) {
-      const Vec2 d = t[(e + 1) % 3] - t[e], n(-d.y(), d.x());
-      for (const Vec2& x : P.p)
-        if ((x - t[e]).dot(n) < 0) {
-          cell_inside = false;
-          break;
-        }
+    // whose sides are no dual edges), the cell inside the triangle (Q = P), or the two
+    // apart, separated by a side of either (nothing to integrate or spread from; about
+    // half the triangles the flood fill looks at are the ring just outside the cell).
+    bool triangle_inside = true, cell_inside = true, apart = false;
+    for (size_t e = 0; e < P.p.size() && !apart; ++e) {
+      int outside = 0;
+      for (int v = 0; v < 3; ++v) outside += P.line[e].head<2>().dot(t[v]) + P.line[e].z() < 0;
+      triangle_inside = triangle_inside && outside == 0;
+      apart = outside == 3;
     }
+    for (int e = 0; e < 3 && !apart && !triangle_inside; ++e) {
+      const Vec2 d = t[(e + 1) % 3] - t[e], n(-d.y(), d.x());
+      size_t outside = 0;
+      for (const Vec2& x : P.p) outside += (x - t[e]).dot(n) < 0;
+      cell_inside = cell_inside && outside == 0;
+      apart = outside == P.p.size();
+    }
+    if (apart) continue;
     const LabelledPolygon* piece = &P;
     if (triangle_inside) {
       Q.p.clear();
