@@ -91,7 +91,7 @@ pb::Job wait_for_stage(Client& c, const std::string& id, const std::string& stag
 // ---- round trips -------------------------------------------------------------------------
 
 TEST(Service, MapRoundTripsGiveTheEnginesAnswer) {
-  ServerProcess server(temp_dir("svc-map"));
+  ServerProcess server(temp_dir("svc-map"), {"--workers", "1"});
   Client c = server.client();
   EXPECT_EQ(server.health(), 1);
   const pb::Mesh m = c.upload_bytes(hemisphere(), "hemisphere.off");
@@ -102,8 +102,13 @@ TEST(Service, MapRoundTripsGiveTheEnginesAnswer) {
   // The same bytes again are the same mesh.
   EXPECT_EQ(c.upload_bytes(hemisphere(), "again.off").id(), m.id());
   EXPECT_EQ(c.list_meshes().size(), 1u);
+  const std::string big = c.upload_bytes(big_hemisphere(), "big").id();
 
   for (pb::MapMethod method : {pb::CONFORMAL, pb::AREA_PRESERVING}) {
+    // A longer job ahead of it on the one worker: the watch below attaches while this job
+    // is still queued and sees all of its events (the small map alone can finish before
+    // the watch arrives, and a finished job's watch gets its terminal state only).
+    c.submit(map_spec(big, pb::DISK, pb::AREA_PRESERVING));
     pb::Job j = c.submit(map_spec(m.id(), pb::DISK, method));
     EXPECT_TRUE(j.state() == pb::QUEUED || j.state() == pb::RUNNING);
     int events = 0;
