@@ -1,13 +1,13 @@
 #include "client.hpp"
 
-#include <openssl/evp.h>
-
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <random>
+
+#include "common/hash.hpp"
 
 namespace brenier::client {
 namespace {
@@ -31,18 +31,7 @@ std::string random_request_id() {
 
 }  // namespace
 
-std::string sha256_hex(const std::string& bytes) {
-  unsigned char md[EVP_MAX_MD_SIZE];
-  unsigned int len = 0;
-  EVP_Digest(bytes.data(), bytes.size(), md, &len, EVP_sha256(), nullptr);
-  static const char* hex = "0123456789abcdef";
-  std::string out;
-  for (unsigned int i = 0; i < len; ++i) {
-    out += hex[md[i] >> 4];
-    out += hex[md[i] & 15];
-  }
-  return out;
-}
+std::string sha256_hex(const std::string& bytes) { return brenier::sha256_hex(bytes); }
 
 Client::Client(const Options& o) : options_(o) {
   server_ = o.server;
@@ -118,17 +107,31 @@ pb::Mesh Client::get_mesh(const std::string& id) {
   return m;
 }
 
-std::vector<pb::Mesh> Client::list_meshes() {
-  std::vector<pb::Mesh> out;
-  pb::ListMeshesRequest r;
+namespace {
+
+// Every page of a paged list: `call(request, page)` fetches one, `items(page)` its entries.
+template <class Request, class Page, class Call, class Items>
+auto all_pages(Request r, Call call, Items items) {
+  std::vector<typename std::decay_t<decltype(items(Page()))>::value_type> out;
   r.set_page_size(1000);
   do {
-    pb::ListMeshesResponse page;
-    check(stub_->ListMeshes(context().get(), r, &page));
-    out.insert(out.end(), page.meshes().begin(), page.meshes().end());
+    Page page;
+    call(r, page);
+    out.insert(out.end(), items(page).begin(), items(page).end());
     r.set_page_token(page.next_page_token());
   } while (!r.page_token().empty());
   return out;
+}
+
+}  // namespace
+
+std::vector<pb::Mesh> Client::list_meshes() {
+  return all_pages<pb::ListMeshesRequest, pb::ListMeshesResponse>(
+      pb::ListMeshesRequest(),
+      [&](const pb::ListMeshesRequest& r, pb::ListMeshesResponse& page) {
+        check(stub_->ListMeshes(context().get(), r, &page));
+      },
+      [](const pb::ListMeshesResponse& page) -> const auto& { return page.meshes(); });
 }
 
 void Client::delete_mesh(const std::string& id) {
@@ -166,17 +169,14 @@ pb::Job Client::cancel(const std::string& id) {
 }
 
 std::vector<pb::Job> Client::list_jobs(pb::JobState state) {
-  std::vector<pb::Job> out;
   pb::ListJobsRequest r;
-  r.set_page_size(1000);
   r.set_state(state);
-  do {
-    pb::ListJobsResponse page;
-    check(stub_->ListJobs(context().get(), r, &page));
-    out.insert(out.end(), page.jobs().begin(), page.jobs().end());
-    r.set_page_token(page.next_page_token());
-  } while (!r.page_token().empty());
-  return out;
+  return all_pages<pb::ListJobsRequest, pb::ListJobsResponse>(
+      r,
+      [&](const pb::ListJobsRequest& q, pb::ListJobsResponse& page) {
+        check(stub_->ListJobs(context().get(), q, &page));
+      },
+      [](const pb::ListJobsResponse& page) -> const auto& { return page.jobs(); });
 }
 
 pb::Job Client::watch(const std::string& id, const std::function<void(const pb::JobEvent&)>& on_event) {

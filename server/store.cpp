@@ -60,11 +60,22 @@ class Stmt {
   sqlite3_stmt* s_;
 };
 
+constexpr const char* kMeshById = "SELECT record FROM meshes WHERE tenant = ? AND id = ?";
+
 template <class M>
 M parse(const std::string& bytes) {
   M m;
   if (!m.ParseFromString(bytes)) fail(ErrorCode::kInternal, "database: a stored record does not parse");
   return m;
+}
+
+// The record of the first row a query with two text parameters finds, if any.
+template <class M>
+std::optional<M> first_record(Store::Connection& c, const char* sql, const std::string& a, const std::string& b) {
+  Stmt s(c, sql);
+  s.text(1, a).text(2, b);
+  if (!s.step()) return std::nullopt;
+  return parse<M>(s.column_blob(0));
 }
 
 int64_t token_value(const std::string& token) {
@@ -225,19 +236,15 @@ pb::Mesh Store::put_mesh(const std::string& tenant, const pb::Mesh& mesh) {
       .text(2, mesh.id())
       .blob(3, mesh.SerializeAsString())
       .step();
-  Stmt s(writer_, "SELECT record FROM meshes WHERE tenant = ? AND id = ?");
-  s.text(1, tenant).text(2, mesh.id());
-  if (!s.step()) fail(ErrorCode::kInternal, "database: a mesh just stored is not there");
-  return parse<pb::Mesh>(s.column_blob(0));
+  std::optional<pb::Mesh> stored = first_record<pb::Mesh>(writer_, kMeshById, tenant, mesh.id());
+  if (!stored) fail(ErrorCode::kInternal, "database: a mesh just stored is not there");
+  return *stored;
 }
 
 std::optional<pb::Mesh> Store::get_mesh(const std::string& tenant, const std::string& id) {
   Connection* c = nullptr;
   auto lock = reader(c);
-  Stmt s(*c, "SELECT record FROM meshes WHERE tenant = ? AND id = ?");
-  s.text(1, tenant).text(2, id);
-  if (!s.step()) return std::nullopt;
-  return parse<pb::Mesh>(s.column_blob(0));
+  return first_record<pb::Mesh>(*c, kMeshById, tenant, id);
 }
 
 std::vector<pb::Mesh> Store::list_meshes(const std::string& tenant, const std::string& token, int limit,
@@ -267,11 +274,10 @@ bool Store::delete_mesh(const std::string& tenant, const std::string& id) {
 pb::Job Store::insert_job(const std::string& tenant, const pb::Job& job, bool& inserted) {
   std::lock_guard<std::mutex> lock(writer_.mutex);
   if (!job.request_id().empty()) {
-    Stmt s(writer_, "SELECT record FROM jobs WHERE tenant = ? AND request_id = ?");
-    s.text(1, tenant).text(2, job.request_id());
-    if (s.step()) {
+    if (std::optional<pb::Job> earlier = first_record<pb::Job>(
+            writer_, "SELECT record FROM jobs WHERE tenant = ? AND request_id = ?", tenant, job.request_id())) {
       inserted = false;
-      return parse<pb::Job>(s.column_blob(0));
+      return *earlier;
     }
   }
   Stmt(writer_, "INSERT INTO jobs (id, tenant, request_id, state, record) VALUES (?, ?, ?, ?, ?)")
@@ -288,10 +294,7 @@ pb::Job Store::insert_job(const std::string& tenant, const pb::Job& job, bool& i
 std::optional<pb::Job> Store::get_job(const std::string& tenant, const std::string& id) {
   Connection* c = nullptr;
   auto lock = reader(c);
-  Stmt s(*c, "SELECT record FROM jobs WHERE tenant = ? AND id = ?");
-  s.text(1, tenant).text(2, id);
-  if (!s.step()) return std::nullopt;
-  return parse<pb::Job>(s.column_blob(0));
+  return first_record<pb::Job>(*c, "SELECT record FROM jobs WHERE tenant = ? AND id = ?", tenant, id);
 }
 
 std::optional<pb::Job> Store::get_job_any(const std::string& id, std::string* tenant) {

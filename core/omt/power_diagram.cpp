@@ -549,6 +549,15 @@ Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& verte
   const PowerTest power;
   const auto orientation = Traits().orientation_2_object();
   using Edge = std::pair<RT::Vertex_handle, RT::Vertex_handle>;
+  // Whether edge e is still there, between two finite faces, with the vertex across from
+  // face f strictly inside f's power circle (f, i: the edge as face and opposite index).
+  auto violates = [&](const Edge& e, RT::Face_handle& f, int& i) {
+    if (!rt.is_edge(e.first, e.second, f, i)) return false;
+    const RT::Face_handle g = f->neighbor(i);
+    if (rt.is_infinite(f) || rt.is_infinite(g)) return false;  // a hull edge stays
+    return power(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point(),
+                 g->vertex(rt.mirror_index(f, i))->point()) == CGAL::ON_POSITIVE_SIDE;
+  };
   std::vector<Edge> queue, stuck, flipped;
   queue.reserve(3 * static_cast<size_t>(n));
   for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
@@ -562,14 +571,9 @@ Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& verte
       queue.pop_back();
       RT::Face_handle f;
       int i;
-      if (!rt.is_edge(e.first, e.second, f, i)) continue;
-      const RT::Face_handle g = f->neighbor(i);
-      if (rt.is_infinite(f) || rt.is_infinite(g)) continue;  // a hull edge stays
+      if (!violates(e, f, i)) continue;
       const RT::Vertex_handle c = f->vertex(i), a = f->vertex(RT::ccw(i)), b = f->vertex(RT::cw(i));
-      const RT::Vertex_handle d = g->vertex(rt.mirror_index(f, i));
-      if (power(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point(), d->point()) !=
-          CGAL::ON_POSITIVE_SIDE)
-        continue;
+      const RT::Vertex_handle d = f->neighbor(i)->vertex(rt.mirror_index(f, i));
       if (orientation(c->point().point(), a->point().point(), d->point().point()) != CGAL::POSITIVE ||
           orientation(c->point().point(), d->point().point(), b->point().point()) != CGAL::POSITIVE) {
         // Not convex: the reflex corner a or b may be a site to hide (no flip can).
@@ -594,12 +598,7 @@ Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& verte
         for (const Edge& e : stuck) {
           RT::Face_handle f;
           int i;
-          if (!rt.is_edge(e.first, e.second, f, i)) continue;
-          const RT::Face_handle g = f->neighbor(i);
-          if (rt.is_infinite(f) || rt.is_infinite(g)) continue;
-          if (power(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point(),
-                    g->vertex(rt.mirror_index(f, i))->point()) == CGAL::ON_POSITIVE_SIDE)
-            ok = false;
+          if (violates(e, f, i)) ok = false;
         }
         stuck.clear();
       } else {
@@ -629,7 +628,6 @@ struct PowerDiagrams::Triangulation {
 };
 
 PowerDiagrams::~PowerDiagrams() = default;
-PowerDiagrams::PowerDiagrams(PowerDiagrams&&) noexcept = default;
 
 
 Domain Domain::unit_disk() { return Domain{}; }
@@ -1004,13 +1002,14 @@ std::vector<int> PowerDiagrams::locate(const Eigen::VectorXd& h, const Points& q
 }
 
 namespace detail {
+namespace {
+WP weighted(const double a[3]) { return WP(K::Point_2(a[0], a[1]), a[2]); }
+}  // namespace
 int power_side(const double p[3], const double q[3], const double r[3], const double t[3]) {
-  auto wp = [](const double a[3]) { return WP(K::Point_2(a[0], a[1]), a[2]); };
-  return static_cast<int>(PowerTest()(wp(p), wp(q), wp(r), wp(t)));
+  return static_cast<int>(PowerTest()(weighted(p), weighted(q), weighted(r), weighted(t)));
 }
 int power_side_exact(const double p[3], const double q[3], const double r[3], const double t[3]) {
-  auto wp = [](const double a[3]) { return WP(K::Point_2(a[0], a[1]), a[2]); };
-  return static_cast<int>(PowerTest::Exact()(wp(p), wp(q), wp(r), wp(t)));
+  return static_cast<int>(PowerTest::Exact()(weighted(p), weighted(q), weighted(r), weighted(t)));
 }
 }  // namespace detail
 

@@ -95,6 +95,7 @@ PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::V
 class PowerDiagrams {
  public:
   PowerDiagrams(Domain domain, Points sites, bool check_distinct = true);
+  ~PowerDiagrams();
   /// The diagram at heights h (as power_cells).
   PowerCells operator()(const Eigen::VectorXd& h) const;
   /// The diagram at h, or nothing as soon as one site is found hidden (its cell empty):
@@ -118,10 +119,6 @@ class PowerDiagrams {
   // (a Newton step away) are reached by edge flips instead of a new triangulation.
   struct Triangulation;
   mutable std::unique_ptr<Triangulation> last_;
-
- public:
-  ~PowerDiagrams();
-  PowerDiagrams(PowerDiagrams&&) noexcept;
 };
 
 namespace detail {
