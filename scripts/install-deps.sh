@@ -7,6 +7,8 @@ PACKAGES=(
   build-essential cmake ninja-build pkg-config git ca-certificates
   libeigen3-dev libcgal-dev libgmp-dev libmpfr-dev libboost-dev
   libopenmesh-dev libsuitesparse-dev
+  # L-BFGS (header-only, on Eigen) for the barrier fold repair of area-preserving maps.
+  liblbfgspp-dev
   # CHOLMOD's supernodal Cholesky runs on BLAS; with this installed, Debian's alternatives
   # give it OpenBLAS. The pthread build, not the serial one: only it locks its buffers, so
   # two threads may factor at once; the core sets it to one thread per call

@@ -10,6 +10,7 @@
 #include "common/error.hpp"
 #include "mesh/geometry.hpp"
 #include "mesh/topology.hpp"
+#include "omt/fold_repair.hpp"
 #include "quality/quality.hpp"
 
 namespace brenier::omt {
@@ -49,83 +50,6 @@ AreaPreservingMap starting_from(conformal::ConformalMap c) {
   AreaPreservingMap out;
   out.conformal = std::move(c);
   return out;
-}
-
-// Folds the local untangling on the sphere left, repaired one cluster at a time: the cap of
-// 60 degrees around a folded face goes onto its tangent plane by the gnomonic projection,
-// under which a chord triangle is outward-facing exactly when its image turns
-// counter-clockwise; there the mean-value Tutte repair of the disk map
-// (repair_planar_folds, rings doubling around the folds, the cap's rim fixed) applies, and
-// the moved vertices go back onto the sphere. A round is kept only if it leaves fewer folds
-// and the area distortion (mean |log area ratio|) stays within 0.1 of the unrepaired map's:
-// the Tutte weights pull a region toward a harmonic layout, and a repair that trades folds
-// for a distorted map is no repair (the folds are then reported).
-void repair_sphere_folds(const mesh::TriMesh& m, AreaPreservingMap& out) {
-  const int nv = m.num_vertices(), nf = m.num_faces();
-  auto folded_face = [&](const mesh::Vertices& Z, int f) { return conformal::face_folded(m, Z, f, true); };
-  const double allowed =
-      0.1 + quality::measure(m, out.positions, quality::Target::kSphere).area_distortion_log_abs.mean;
-  std::vector<char> tried(nf, 0);
-  for (int round = 0; round < 16 && out.folded_faces > 0; ++round) {
-    int seed = -1;
-    for (int f = 0; f < nf && seed < 0; ++f)
-      if (!tried[f] && folded_face(out.positions, f)) seed = f;
-    if (seed < 0) return;
-    tried[seed] = 1;
-    const mesh::Vertices& X = out.positions;
-    const Eigen::Vector3d centre =
-        (X.row(m.F(seed, 0)) + X.row(m.F(seed, 1)) + X.row(m.F(seed, 2))).transpose().normalized();
-    const Eigen::Vector3d e1 = centre.unitOrthogonal(), e2 = centre.cross(e1);
-    std::vector<char> inside(nv, 0), fixed(nv, 1);
-    for (int v = 0; v < nv; ++v) inside[v] = X.row(v).dot(centre) > 0.5;
-    std::vector<int> kept;
-    for (int f = 0; f < nf; ++f)
-      if (inside[m.F(f, 0)] && inside[m.F(f, 1)] && inside[m.F(f, 2)]) kept.push_back(f);
-    // Free: inside vertices all of whose faces lie in the cap.
-    for (int v = 0; v < nv; ++v) fixed[v] = !inside[v];
-    for (int f = 0; f < nf; ++f)
-      if (!(inside[m.F(f, 0)] && inside[m.F(f, 1)] && inside[m.F(f, 2)]))
-        for (int k = 0; k < 3; ++k) fixed[m.F(f, k)] = 1;
-    // Only the part of the cap connected to the seed face (the repair's rings must be able
-    // to reach every free vertex).
-    {
-      std::vector<std::vector<int>> faces_of(nv);
-      for (int f : kept)
-        for (int k = 0; k < 3; ++k) faces_of[m.F(f, k)].push_back(f);
-      std::vector<char> reached(nv, 0);
-      std::vector<int> queue;
-      for (int k = 0; k < 3; ++k)
-        if (inside[m.F(seed, k)] && !reached[m.F(seed, k)]) reached[m.F(seed, k)] = 1, queue.push_back(m.F(seed, k));
-      for (size_t q = 0; q < queue.size(); ++q)
-        for (int f : faces_of[queue[q]])
-          for (int k = 0; k < 3; ++k)
-            if (!reached[m.F(f, k)]) reached[m.F(f, k)] = 1, queue.push_back(m.F(f, k));
-      for (int v = 0; v < nv; ++v)
-        if (!reached[v]) fixed[v] = 1;
-    }
-    mesh::TriMesh cap{m.V, mesh::Faces(static_cast<int>(kept.size()), 3)};
-    for (size_t k = 0; k < kept.size(); ++k) cap.F.row(static_cast<int>(k)) = m.F.row(kept[k]);
-    mesh::Vertices P = mesh::Vertices::Zero(nv, 3);
-    for (int v = 0; v < nv; ++v)
-      if (inside[v]) {
-        const Eigen::Vector3d x = X.row(v);
-        P.row(v) << x.dot(e1) / x.dot(centre), x.dot(e2) / x.dot(centre), 0;
-      }
-    int planar_left = 0;
-    const int moved = conformal::repair_planar_folds(cap, P, fixed, planar_left);
-    if (moved == 0) continue;
-    mesh::Vertices back = X;
-    for (int v = 0; v < nv; ++v)
-      if (!fixed[v]) back.row(v) = (centre + P(v, 0) * e1 + P(v, 1) * e2).normalized().transpose();
-    int left = 0;
-    for (int f = 0; f < nf; ++f) left += folded_face(back, f);
-    const double after = quality::measure(m, back, quality::Target::kSphere).area_distortion_log_abs.mean;
-    if (left < out.folded_faces && after <= allowed) {
-      out.positions = std::move(back);
-      out.folded_faces = left;
-      out.relaxed_vertices += moved;
-    }
-  }
 }
 
 }  // namespace
@@ -231,7 +155,12 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
       out.positions.row(v) = ((1 - opt.t) * out.positions.row(v) + opt.t * X.row(v)).normalized();
   std::vector<char> fixed(nv, 0);
   out.relaxed_vertices = conformal::untangle(m, out.positions, true, fixed, out.folded_faces);
-  if (out.folded_faces > 0) repair_sphere_folds(m, out);
+  // Folds the local steps left: the barrier repair of fold_repair.hpp, kept only where it
+  // leaves the map's area distortion no larger than it was.
+  if (out.folded_faces > 0) {
+    const double before = quality::measure(m, out.positions, quality::Target::kSphere).area_distortion_log_abs.mean;
+    out.relaxed_vertices += repair_sphere_folds_by_barrier(m, out.positions, before, out.folded_faces);
+  }
   return out;
 }
 

@@ -67,7 +67,9 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& mesh, const AreaPres
 /// planar solver whole (exact cell masses and Hessian in closed form), and the conformal
 /// map already lives in that plane. With t > 0, vertex i goes to the normalized
 /// (1 - t) c_i + t p_i, c_i its cell's centroid and p_i its conformal image. Folds left by
-/// neighbouring centroids are untangled on the sphere. Errors as area_preserving_disk.
+/// neighbouring centroids (coarse or CAD-like meshes) are untangled on the sphere, first by
+/// local steps, then by the barrier repair of fold_repair.hpp, kept only where it leaves the
+/// area distortion no larger. Errors as area_preserving_disk.
 AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& mesh, const AreaPreservingOptions& options = {});
 
 }  // namespace brenier::omt

@@ -130,9 +130,10 @@ TEST(RealAreaPreserving, SphereMeshesGetAreaPreservingMapsOrSayWhyNot) {
   // Onto the sphere (sec. 3.2.5). Where the conformal sphere map packs vertices closer than
   // ~1e-6 (camel, dino, man, armadillo, ...), cells that small are below what double-
   // precision heights resolve: those must fail with kNotConverged, never return a wrong
-  // map. Every returned map has converged masses and reports its folds truthfully; 42 of
-  // the 59 sphere meshes map with none (2026-11-22: 9 at the precision limit, 8 with 1-9
-  // folds the local repair could not remove), and that number may not drop.
+  // map. Every returned map has converged masses and reports its folds truthfully; 50 of
+  // the 59 sphere meshes map with none (2026-11-22: the other 9 at the precision limit; the 8
+  // coarse or CAD-like meshes whose centroids fold -- cactus, cross, dragknob, hand, homer,
+  // oblong, part, u -- are unfolded by the barrier repair), and that number may not drop.
   auto cases = meshes_of_class(mesh::MeshClass::kSphere);
   ASSERT_GE(cases.size(), 50u);
   int unfolded = 0, limit = 0;
@@ -160,7 +161,7 @@ TEST(RealAreaPreserving, SphereMeshesGetAreaPreservingMapsOrSayWhyNot) {
     else
       failures += " " + c.name + "(" + std::to_string(flipped) + " folds)";
   }
-  EXPECT_GE(unfolded, 42) << "failed:" << failures << " (" << limit << " at the precision limit)";
+  EXPECT_GE(unfolded, 50) << "failed:" << failures << " (" << limit << " at the precision limit)";
 }
 
 TEST(RealAreaPreserving, SphereAreaDistortionFallsFarBelowTheConformalMaps) {
