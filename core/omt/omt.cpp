@@ -99,9 +99,12 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   r.target = nu_in * (domain.area() / nu_in.sum());
   const Eigen::VectorXd& nu = r.target;
   // Alg. 2 starts from the Voronoi diagram ("h = 0" in the power-distance convention); with
-  // u_h = max <x, y_i> + h_i that is h_i = -|y_i|^2 / 2 (equal power weights).
-  r.h = -0.5 * sites.rowwise().squaredNorm();
+  // u_h = max <x, y_i> + h_i that is h_i = -|y_i|^2 / 2 (equal power weights). The iterates
+  // are the offsets psi = h + |y|^2 / 2 (PowerDiagrams::at_offsets), which keep their
+  // precision where h would carry the round-off of |y_i|^2: the Voronoi start is psi = 0
+  // exactly, and a Newton step changes psi as it changes h.
   const PowerDiagrams diagram(domain, sites);
+  Eigen::VectorXd psi = Eigen::VectorXd::Zero(n);
   if (opt.initial_h.size() != 0) {
     if (opt.initial_h.size() != n || !opt.initial_h.allFinite())
       invalid("initial heights: " + std::to_string(opt.initial_h.size()) + " finite values needed for " +
@@ -113,21 +116,22 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
     // density spans e^44, did not converge in 200 iterations from the uniform disk's
     // heights), another shape's density better from those heights (24 iterations where
     // Voronoi took 52). The threshold spares the extra diagram where the start is good.
-    std::optional<PowerCells> c = diagram.if_none_hidden(opt.initial_h);
+    const Eigen::VectorXd initial = diagram.offsets(opt.initial_h);
+    std::optional<PowerCells> c = diagram.at_offsets_if_none_hidden(initial);
     if (c && c->empty_cells == 0) {
       bool take = max_relative(c->mass, nu) <= 10;
       if (!take) {
-        r.cells = diagram(r.h);
+        r.cells = diagram.at_offsets(psi);
         take = r.cells.empty_cells > 0 || relative_norm(c->mass - nu, nu) < relative_norm(r.cells.mass - nu, nu);
       }
       if (take) {
-        r.h = opt.initial_h;
+        psi = initial;
         r.cells = std::move(*c);
         r.warm_started = true;
       }
     }
   }
-  if (!r.warm_started && r.cells.mass.size() == 0) r.cells = diagram(r.h);
+  if (!r.warm_started && r.cells.mass.size() == 0) r.cells = diagram.at_offsets(psi);
   if (!r.warm_started && r.cells.empty_cells > 0) {
     // Sites outside the domain (a conformal image's vertices on the unit circle, beyond the
     // chords of another image's hull) can have empty Voronoi cells. Pull the sites toward
@@ -146,17 +150,20 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
     double s = 1;
     for (int k = 0; k < 60 && !all_inside(s); ++k) s *= 0.5;
     if (s < 1) {
-      Eigen::VectorXd h(n);
-      for (int i = 0; i < n; ++i) h[i] = -(c + s * (sites.row(i).transpose() - c)).squaredNorm() / (2 * s);
-      PowerCells cells = diagram(h);
+      // psi_i = h_i + |y_i|^2 / 2 = (s - 1) (|c|^2 - s |y_i - c|^2) / (2 s)
+      Eigen::VectorXd shrunk(n);
+      for (int i = 0; i < n; ++i)
+        shrunk[i] = (s - 1) * (c.squaredNorm() - s * (sites.row(i).transpose() - c).squaredNorm()) / (2 * s);
+      PowerCells cells = diagram.at_offsets(shrunk);
       if (cells.empty_cells < r.cells.empty_cells) {
-        r.h = std::move(h);
+        psi = std::move(shrunk);
         r.cells = std::move(cells);
       }
     }
   }
   r.max_relative_error = max_relative(r.cells.mass, nu);
   if (n == 1) {
+    r.h = Eigen::VectorXd::Zero(1);
     r.converged = true;
     return r;
   }
@@ -256,12 +263,12 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       // 1e-4, where full steps are taken) 4 do.
       const int max_halvings = r.max_relative_error < 1e-4 ? 4 : 30;
       for (int halvings = 0; halvings < max_halvings; ++halvings, t *= 0.5) {
-        Eigen::VectorXd trial = r.h + t * dh;
-        std::optional<PowerCells> c = diagram.if_none_hidden(trial);
+        Eigen::VectorXd trial = psi + t * dh;
+        std::optional<PowerCells> c = diagram.at_offsets_if_none_hidden(trial);
         if (!c || c->empty_cells > 0 || c->mass.minCoeff() < eps0) continue;
         Eigen::VectorXd gt = c->mass - nu;
         if (relative_norm(gt, nu) <= (1 - 0.5 * t) * gnorm || max_relative(c->mass, nu) <= opt.tolerance) {
-          r.h = std::move(trial);
+          psi = std::move(trial);
           r.cells = std::move(*c);
           g = std::move(gt);
           accepted = true;
@@ -277,6 +284,7 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       break;  // round-off floor: no step improves any more
     }
   }
+  r.h = psi - 0.5 * sites.rowwise().squaredNorm();
   r.h.array() -= r.h.mean();
   r.converged = r.max_relative_error <= opt.tolerance;
   return r;

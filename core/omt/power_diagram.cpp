@@ -489,18 +489,19 @@ void integrate_sphere(const LabelledPolygon& P, const Vec2& site, CellResult& ou
   }
 }
 
-// Regular triangulation of the weighted points (y_i, |y_i|^2 + 2 h_i), inserted in `order`:
+// Regular triangulation of the weighted points (y_i, 2 psi_i), psi the offsets of
+// PowerDiagrams (power weight |y_i|^2 + 2 h_i = 2 psi_i, exact), inserted in `order`:
 // its adjacency is the power diagram's; hidden points have empty cells. A hidden point
 // stays hidden as more are inserted (the lifted lower hull only descends), so with
 // `fail_if_hidden` it stops, returning false, at the first one found.
-bool triangulate(const Points& sites, const Eigen::VectorXd& h, const std::vector<int>& order, bool fail_if_hidden,
+bool triangulate(const Points& sites, const Eigen::VectorXd& psi, const std::vector<int>& order, bool fail_if_hidden,
                  RT& rt) {
   const int n = static_cast<int>(sites.rows());
   RT::Face_handle hint;
   const int check_every = std::max(256, n / 64);
   for (int k = 0; k < n; ++k) {
     const int i = order[k];
-    const WP p(K::Point_2(sites(i, 0), sites(i, 1)), sites.row(i).squaredNorm() + 2 * h[i]);
+    const WP p(K::Point_2(sites(i, 0), sites(i, 1)), 2 * psi[i]);
     RT::Vertex_handle v = rt.insert(p, hint);
     if (v == RT::Vertex_handle()) continue;
     v->info() = i;
@@ -539,13 +540,13 @@ bool surely_hidden(const RT& rt, RT::Vertex_handle v, const PowerTest& power) {
 }
 
 Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& vertex, const Points& sites,
-                             const Eigen::VectorXd& old_h, const Eigen::VectorXd& h, bool stop_if_hidden) {
+                             const Eigen::VectorXd& old_psi, const Eigen::VectorXd& psi, bool stop_if_hidden) {
   const int n = static_cast<int>(sites.rows());
   if (rt.dimension() != 2) return Reweighted::kStuck;
-  auto set_weights = [&](const Eigen::VectorXd& heights) {
-    for (int i = 0; i < n; ++i) vertex[i]->point() = WP(vertex[i]->point().point(), sites.row(i).squaredNorm() + 2 * heights[i]);
+  auto set_weights = [&](const Eigen::VectorXd& offsets) {
+    for (int i = 0; i < n; ++i) vertex[i]->point() = WP(vertex[i]->point().point(), 2 * offsets[i]);
   };
-  set_weights(h);
+  set_weights(psi);
   const PowerTest power;
   const auto orientation = Traits().orientation_2_object();
   using Edge = std::pair<RT::Vertex_handle, RT::Vertex_handle>;
@@ -615,7 +616,7 @@ Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& verte
     BRENIER_CHECK(found, "an edge flipped by the power-diagram update has disappeared");
     rt.flip(f, i);
   }
-  set_weights(old_h);
+  set_weights(old_psi);
   return hidden ? Reweighted::kHidden : Reweighted::kStuck;
 }
 
@@ -624,7 +625,7 @@ Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& verte
 struct PowerDiagrams::Triangulation {
   RT rt;
   std::vector<RT::Vertex_handle> vertex;  // by site
-  Eigen::VectorXd h;                      // the heights rt is regular for
+  Eigen::VectorXd psi;                    // the offsets rt is regular for
 };
 
 PowerDiagrams::~PowerDiagrams() = default;
@@ -806,27 +807,41 @@ PowerDiagrams::PowerDiagrams(Domain domain, Points sites, bool check_distinct)
   CGAL::hilbert_sort(order_.begin(), order_.end(), traits);
 }
 
-PowerCells PowerDiagrams::operator()(const Eigen::VectorXd& h) const { return *build(h, false); }
+Eigen::VectorXd PowerDiagrams::offsets(const Eigen::VectorXd& h) const {
+  if (h.size() != sites_.rows())
+    invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(sites_.rows()) + " sites");
+  return h + 0.5 * sites_.rowwise().squaredNorm();
+}
 
-std::optional<PowerCells> PowerDiagrams::if_none_hidden(const Eigen::VectorXd& h) const { return build(h, true); }
+PowerCells PowerDiagrams::operator()(const Eigen::VectorXd& h) const { return *build(offsets(h), false); }
 
-std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fail_if_hidden) const {
+std::optional<PowerCells> PowerDiagrams::if_none_hidden(const Eigen::VectorXd& h) const {
+  return build(offsets(h), true);
+}
+
+PowerCells PowerDiagrams::at_offsets(const Eigen::VectorXd& psi) const { return *build(psi, false); }
+
+std::optional<PowerCells> PowerDiagrams::at_offsets_if_none_hidden(const Eigen::VectorXd& psi) const {
+  return build(psi, true);
+}
+
+std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& psi, bool fail_if_hidden) const {
   const Domain& domain = domain_;
   const Points& sites = sites_;
   const int n = static_cast<int>(sites.rows());
-  if (h.size() != n) invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(n) + " sites");
-  if (!h.allFinite()) invalid("heights must be finite");
+  if (psi.size() != n) invalid("offsets: " + std::to_string(psi.size()) + " for " + std::to_string(n) + " sites");
+  if (!psi.allFinite()) invalid("heights must be finite");
   // The kept triangulation updated by flips, or a new one (kept when it holds every site).
   RT fresh;
   const RT* rt_used = nullptr;
   const Reweighted flipped =
-      last_ ? reweight_by_flips(last_->rt, last_->vertex, sites, last_->h, h, fail_if_hidden) : Reweighted::kStuck;
+      last_ ? reweight_by_flips(last_->rt, last_->vertex, sites, last_->psi, psi, fail_if_hidden) : Reweighted::kStuck;
   if (flipped == Reweighted::kHidden) return std::nullopt;
   if (flipped == Reweighted::kRegular) {
-    last_->h = h;
+    last_->psi = psi;
     rt_used = &last_->rt;
   } else {
-    if (!triangulate(sites, h, order_, fail_if_hidden, fresh)) return std::nullopt;
+    if (!triangulate(sites, psi, order_, fail_if_hidden, fresh)) return std::nullopt;
     if (fresh.number_of_hidden_vertices() == 0 && static_cast<int>(fresh.number_of_vertices()) == n &&
         fresh.dimension() == 2) {
       if (!last_) last_ = std::make_unique<Triangulation>();
@@ -834,7 +849,7 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
       last_->vertex.assign(n, RT::Vertex_handle());
       for (auto v = last_->rt.finite_vertices_begin(); v != last_->rt.finite_vertices_end(); ++v)
         last_->vertex[v->info()] = v;
-      last_->h = h;
+      last_->psi = psi;
       rt_used = &last_->rt;
     } else {
       rt_used = &fresh;
@@ -921,8 +936,10 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& h, bool fa
       for (int k = start[i]; k < start[i + 1] && !P.p.empty(); ++k) {
         const int j = nbr[k];
         const Vec2 yj = sites.row(j);
-        // W_i: <x, y_i> + h_i >= <x, y_j> + h_j.
-        clip(P, yi - yj, h[i] - h[j], k, scratch);
+        // W_i: <x, y_i> + h_i >= <x, y_j> + h_j, with h_i - h_j = psi_i - psi_j - <y_i - y_j, y_i + y_j> / 2:
+        // the difference of the squares as a product keeps its relative precision for
+        // sites close together (h_i itself carries the round-off of |y_i|^2).
+        clip(P, yi - yj, (psi[i] - psi[j]) - 0.5 * (yi - yj).dot(yi + yj), k, scratch);
       }
       if (late_outline) {
         bool inside = true;
@@ -974,7 +991,7 @@ std::vector<int> PowerDiagrams::locate(const Eigen::VectorXd& h, const Points& q
   if (!h.allFinite()) invalid("heights must be finite");
   if (!queries.allFinite()) invalid("query points must be finite");
   RT rt;
-  triangulate(sites_, h, order_, false, rt);
+  triangulate(sites_, offsets(h), order_, false, rt);
   std::vector<int> out(queries.rows(), -1);
   if (rt.number_of_vertices() == 0) return out;
   // Greedy walk (as CGAL's nearest_power_vertex, but from the previous answer): move to a

@@ -101,12 +101,21 @@ class PowerDiagrams {
   /// The diagram at h, or nothing as soon as one site is found hidden (its cell empty):
   /// a rejected trial step then costs a fraction of a diagram.
   std::optional<PowerCells> if_none_hidden(const Eigen::VectorXd& h) const;
+  /// The same at the offsets psi_i = h_i + |y_i|^2 / 2 (half the power weight; psi = 0 is
+  /// the Voronoi diagram). Heights of sites far from the origin carry the round-off of
+  /// |y_i|^2, which places the bisector of two sites d apart only to eps |y|^2 / d; the
+  /// offsets are what the regular triangulation's weights are made of (exactly) and keep
+  /// their own precision, so the OMT solver iterates on them.
+  PowerCells at_offsets(const Eigen::VectorXd& psi) const;
+  std::optional<PowerCells> at_offsets_if_none_hidden(const Eigen::VectorXd& psi) const;
+  /// The offsets of heights h.
+  Eigen::VectorXd offsets(const Eigen::VectorXd& h) const;
   /// For each query point x, the site whose cell at heights h holds it (argmax_i <x, y_i> +
   /// h_i, exact predicates; ties go to either); the plane's cells, unclipped by the domain.
   std::vector<int> locate(const Eigen::VectorXd& h, const Points& queries) const;
 
  private:
-  std::optional<PowerCells> build(const Eigen::VectorXd& h, bool fail_if_hidden) const;
+  std::optional<PowerCells> build(const Eigen::VectorXd& psi, bool fail_if_hidden) const;
   Domain domain_;
   Points sites_;
   std::vector<int> order_;  // Hilbert order of the sites

@@ -127,13 +127,16 @@ TEST(RealAreaPreserving, AreaDistortionFallsFarBelowTheConformalMaps) {
 }
 
 TEST(RealAreaPreserving, SphereMeshesGetAreaPreservingMapsOrSayWhyNot) {
-  // Onto the sphere (sec. 3.2.5). Where the conformal sphere map packs vertices closer than
-  // ~1e-6 (camel, dino, man, armadillo, ...), cells that small are below what double-
-  // precision heights resolve: those must fail with kNotConverged, never return a wrong
-  // map. Every returned map has converged masses and reports its folds truthfully; 50 of
-  // the 59 sphere meshes map with none (2026-11-22: the other 9 at the precision limit; the 8
-  // coarse or CAD-like meshes whose centroids fold -- cactus, cross, dragknob, hand, homer,
-  // oblong, part, u -- are unfolded by the barrier repair), and that number may not drop.
+  // Onto the sphere (sec. 3.2.5). Where the conformal sphere map packs neighbouring vertices
+  // 1e-6 to 1e-15 apart (armadillo, bull, bunny00, camel, cow, dino, diplodocus, man), the
+  // transport cannot reach its tolerance in doubles -- the bisector of two sites d apart is
+  // placed only to ~1e-17 / d by offsets of size 0.1, and damped Newton steps from such a
+  // start hide sites at any step length the line search tries: those must fail with
+  // kNotConverged, never return a wrong map. Every returned map has converged masses and
+  // reports its folds truthfully; 51 of the 59 sphere meshes map with none (2026-11-22,
+  // session 7: the barrier repair unfolds the 8 coarse or CAD-like meshes whose centroids
+  // fold, and the solver's offsets psi = h + |y|^2/2 brought triceratops within reach), and
+  // that number may not drop.
   auto cases = meshes_of_class(mesh::MeshClass::kSphere);
   ASSERT_GE(cases.size(), 50u);
   int unfolded = 0, limit = 0;
@@ -161,7 +164,7 @@ TEST(RealAreaPreserving, SphereMeshesGetAreaPreservingMapsOrSayWhyNot) {
     else
       failures += " " + c.name + "(" + std::to_string(flipped) + " folds)";
   }
-  EXPECT_GE(unfolded, 50) << "failed:" << failures << " (" << limit << " at the precision limit)";
+  EXPECT_GE(unfolded, 51) << "failed:" << failures << " (" << limit << " at the precision limit)";
 }
 
 TEST(RealAreaPreserving, SphereAreaDistortionFallsFarBelowTheConformalMaps) {

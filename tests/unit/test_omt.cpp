@@ -618,3 +618,36 @@ TEST(FoldRepair, UnfoldsAPushedVertexOnTheSphereLocallyAndKeepsAreas) {
     }
   for (int u = 0; u < m.num_vertices(); ++u) EXPECT_NEAR(X.row(u).norm(), 1.0, 1e-12);
 }
+
+// The solver iterates on the offsets psi = h + |y|^2 / 2 (half the power weights), not on
+// h: two sites 1e-12 apart have a bisector that h_i = -|y_i|^2 / 2, with round-off of
+// ~1e-16, places only to ~1e-4 -- their Voronoi cells, ~1e-12 across at the start, came out
+// empty and the solver refused the sites. With psi = 0 the Voronoi cells are there, and
+// the transport brings both to their masses as far as doubles allow (psi ~ 0.1 places the
+// bisector to ~1e-5, so a tolerance of 1e-3 here).
+TEST(Omt, SitesCloseTogetherKeepTheirCellsAndReachTheirMasses) {
+  const Domain sphere = Domain::stereographic_sphere();
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g;
+  Points y(42, 2);
+  for (int i = 0; i < 40; ++i) {  // stereographic images of random points on the sphere
+    Eigen::Vector3d x(g(rng), g(rng), g(rng));
+    x.normalize();
+    x.z() = std::min(x.z(), 0.9);
+    y.row(i) << x.x() / (1 - x.z()), x.y() / (1 - x.z());
+  }
+  y.row(40) << 0.6, 0.5;
+  y.row(41) << 0.6 + 1e-12, 0.5 + 1e-12;
+  const omt::PowerCells voronoi = omt::PowerDiagrams(sphere, y).at_offsets(Eigen::VectorXd::Zero(42));
+  EXPECT_EQ(voronoi.empty_cells, 0);
+  EXPECT_GT(voronoi.mass[40], 0);
+  EXPECT_GT(voronoi.mass[41], 0);
+  omt::OmtOptions opt;
+  opt.tolerance = 1e-3;
+  const omt::OmtResult r = omt::solve_omt(sphere, y, Eigen::VectorXd::Ones(42), opt);
+  EXPECT_TRUE(r.converged) << r.max_relative_error;
+  EXPECT_EQ(r.cells.empty_cells, 0);
+  const double share = 4 * std::numbers::pi / 42;
+  EXPECT_NEAR(r.cells.mass[40], share, 1e-3 * share);
+  EXPECT_NEAR(r.cells.mass[41], share, 1e-3 * share);
+}
