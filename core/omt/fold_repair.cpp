@@ -41,13 +41,13 @@ namespace {
 struct BarrierEnergy {
   const std::vector<BarrierFace>& faces;
   mesh::Vertices& X;
-  const std::vector<int>& var;  // row of X -> its first unknown, or -1 when fixed
+  const std::vector<int>& var;   // row of X -> its first unknown, or -1 when fixed
+  const std::vector<int>& rows;  // the free rows, in the unknowns' order
   double theta, eps = 1;
   double min_det = 0;
 
   void load(const Eigen::VectorXd& y) {
-    for (Eigen::Index r = 0; r < X.rows(); ++r)
-      if (var[r] >= 0) X.row(r) = y.segment<3>(var[r]).normalized().transpose();
+    for (int r : rows) X.row(r) = y.segment<3>(var[r]).normalized().transpose();
   }
   double operator()(const Eigen::VectorXd& y, Eigen::VectorXd& grad) {
     load(y);
@@ -75,11 +75,10 @@ struct BarrierEnergy {
       add(f.v[1], dD * c.cross(a) + dM.col(0));
       add(f.v[2], dD * a.cross(b) + dM.col(1));
     }
-    for (Eigen::Index r = 0; r < X.rows(); ++r)
-      if (var[r] >= 0) {  // through x = y / |y|: (I - x x^T) g / |y|
-        const Eigen::Vector3d x = X.row(r).transpose(), g = gx.segment<3>(var[r]);
-        grad.segment<3>(var[r]) = (g - x * x.dot(g)) / y.segment<3>(var[r]).norm();
-      }
+    for (int r : rows) {  // through x = y / |y|: (I - x x^T) g / |y|
+      const Eigen::Vector3d x = X.row(r).transpose(), g = gx.segment<3>(var[r]);
+      grad.segment<3>(var[r]) = (g - x * x.dot(g)) / y.segment<3>(var[r]).norm();
+    }
     return E;
   }
 };
@@ -88,14 +87,13 @@ struct BarrierEnergy {
 
 int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X, const std::vector<char>& free,
                         double theta) {
-  std::vector<int> var(X.rows(), -1);
+  std::vector<int> var(X.rows(), -1), rows;
   int n = 0;
   for (Eigen::Index r = 0; r < X.rows(); ++r)
-    if (free[r]) var[r] = n, n += 3;
-  BarrierEnergy energy{faces, X, var, theta};
+    if (free[r]) var[r] = n, n += 3, rows.push_back(static_cast<int>(r));
+  BarrierEnergy energy{faces, X, var, rows, theta};
   Eigen::VectorXd y(n), grad(n);
-  for (Eigen::Index r = 0; r < X.rows(); ++r)
-    if (var[r] >= 0) y.segment<3>(var[r]) = X.row(r).transpose();
+  for (int r : rows) y.segment<3>(var[r]) = X.row(r).transpose();
   energy.eps = 1;
   energy(y, grad);
   // eps from the smallest det J: chi(min det, eps) = mu, i.e. eps = 2 sqrt(mu (mu - min det)),
@@ -146,7 +144,7 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, do
     }
   int moved = 0;
   std::vector<char> tried(nf, 0);
-  for (int round = 0; round < 64 && folded > 0; ++round) {
+  for (int round = 0; round < nf && folded > 0; ++round) {  // each face seeds once
     int seed = -1;
     for (int f = 0; f < nf && seed < 0; ++f)
       if (!tried[f] && folded_face(X, f)) seed = f;

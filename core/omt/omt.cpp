@@ -102,9 +102,25 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   // u_h = max <x, y_i> + h_i that is h_i = -|y_i|^2 / 2 (equal power weights). The iterates
   // are the offsets psi = h + |y|^2 / 2 (PowerDiagrams::at_offsets), which keep their
   // precision where h would carry the round-off of |y_i|^2: the Voronoi start is psi = 0
-  // exactly, and a Newton step changes psi as it changes h.
+  // exactly, and a Newton step changes psi as it changes h. The steps are accumulated in
+  // double-double (psi + psi_lo): a cluster of sites d apart that the conformal map packs
+  // together has offsets of size ~0.5 that differ by ~1e-8, and in plain doubles their
+  // bisectors would stay eps |psi| / d off (bunny00 and armadillo stalled at 3e-8).
   const PowerDiagrams diagram(domain, sites);
-  Eigen::VectorXd psi = Eigen::VectorXd::Zero(n);
+  Eigen::VectorXd psi = Eigen::VectorXd::Zero(n), psi_lo = Eigen::VectorXd::Zero(n);
+  // (hi, lo) + step in double-double: Knuth's two-sum, then renormalized (Dekker).
+  auto add_step = [](const Eigen::VectorXd& hi, const Eigen::VectorXd& lo, const Eigen::VectorXd& step,
+                     Eigen::VectorXd& out_hi, Eigen::VectorXd& out_lo) {
+    out_hi.resize(hi.size());
+    out_lo.resize(hi.size());
+    for (Eigen::Index i = 0; i < hi.size(); ++i) {
+      const double s = hi[i] + step[i], bb = s - hi[i];
+      const double e = (hi[i] - (s - bb)) + (step[i] - bb);
+      const double l = lo[i] + e, sum = s + l;
+      out_hi[i] = sum;
+      out_lo[i] = l - (sum - s);
+    }
+  };
   if (opt.initial_h.size() != 0) {
     if (opt.initial_h.size() != n || !opt.initial_h.allFinite())
       invalid("initial heights: " + std::to_string(opt.initial_h.size()) + " finite values needed for " +
@@ -126,6 +142,7 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       }
       if (take) {
         psi = initial;
+        psi_lo.setZero();
         r.cells = std::move(*c);
         r.warm_started = true;
       }
@@ -157,6 +174,7 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       PowerCells cells = diagram.at_offsets(shrunk);
       if (cells.empty_cells < r.cells.empty_cells) {
         psi = std::move(shrunk);
+        psi_lo.setZero();
         r.cells = std::move(cells);
       }
     }
@@ -263,12 +281,14 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       // 1e-4, where full steps are taken) 4 do.
       const int max_halvings = r.max_relative_error < 1e-4 ? 4 : 30;
       for (int halvings = 0; halvings < max_halvings; ++halvings, t *= 0.5) {
-        Eigen::VectorXd trial = psi + t * dh;
-        std::optional<PowerCells> c = diagram.at_offsets_if_none_hidden(trial);
+        Eigen::VectorXd trial, trial_lo;
+        add_step(psi, psi_lo, t * dh, trial, trial_lo);
+        std::optional<PowerCells> c = diagram.at_offsets_if_none_hidden(trial, trial_lo);
         if (!c || c->empty_cells > 0 || c->mass.minCoeff() < eps0) continue;
         Eigen::VectorXd gt = c->mass - nu;
         if (relative_norm(gt, nu) <= (1 - 0.5 * t) * gnorm || max_relative(c->mass, nu) <= opt.tolerance) {
           psi = std::move(trial);
+          psi_lo = std::move(trial_lo);
           r.cells = std::move(*c);
           g = std::move(gt);
           accepted = true;
@@ -284,7 +304,7 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       break;  // round-off floor: no step improves any more
     }
   }
-  r.h = psi - 0.5 * sites.rowwise().squaredNorm();
+  r.h = (psi - 0.5 * sites.rowwise().squaredNorm()) + psi_lo;
   r.h.array() -= r.h.mean();
   r.converged = r.max_relative_error <= opt.tolerance;
   return r;

@@ -813,24 +813,30 @@ Eigen::VectorXd PowerDiagrams::offsets(const Eigen::VectorXd& h) const {
   return h + 0.5 * sites_.rowwise().squaredNorm();
 }
 
-PowerCells PowerDiagrams::operator()(const Eigen::VectorXd& h) const { return *build(offsets(h), false); }
+PowerCells PowerDiagrams::operator()(const Eigen::VectorXd& h) const { return *build(offsets(h), {}, false); }
 
 std::optional<PowerCells> PowerDiagrams::if_none_hidden(const Eigen::VectorXd& h) const {
-  return build(offsets(h), true);
+  return build(offsets(h), {}, true);
 }
 
-PowerCells PowerDiagrams::at_offsets(const Eigen::VectorXd& psi) const { return *build(psi, false); }
-
-std::optional<PowerCells> PowerDiagrams::at_offsets_if_none_hidden(const Eigen::VectorXd& psi) const {
-  return build(psi, true);
+PowerCells PowerDiagrams::at_offsets(const Eigen::VectorXd& psi, const Eigen::VectorXd& lo) const {
+  return *build(psi, lo, false);
 }
 
-std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& psi, bool fail_if_hidden) const {
+std::optional<PowerCells> PowerDiagrams::at_offsets_if_none_hidden(const Eigen::VectorXd& psi,
+                                                                   const Eigen::VectorXd& lo) const {
+  return build(psi, lo, true);
+}
+
+std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& psi, const Eigen::VectorXd& lo,
+                                               bool fail_if_hidden) const {
   const Domain& domain = domain_;
   const Points& sites = sites_;
   const int n = static_cast<int>(sites.rows());
-  if (psi.size() != n) invalid("offsets: " + std::to_string(psi.size()) + " for " + std::to_string(n) + " sites");
-  if (!psi.allFinite()) invalid("heights must be finite");
+  if (psi.size() != n || (lo.size() != 0 && lo.size() != n))
+    invalid("offsets: " + std::to_string(psi.size()) + " for " + std::to_string(n) + " sites");
+  if (!psi.allFinite() || !lo.allFinite()) invalid("heights must be finite");
+  const bool has_lo = lo.size() != 0;
   // The kept triangulation updated by flips, or a new one (kept when it holds every site).
   RT fresh;
   const RT* rt_used = nullptr;
@@ -939,7 +945,8 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& psi, bool 
         // W_i: <x, y_i> + h_i >= <x, y_j> + h_j, with h_i - h_j = psi_i - psi_j - <y_i - y_j, y_i + y_j> / 2:
         // the difference of the squares as a product keeps its relative precision for
         // sites close together (h_i itself carries the round-off of |y_i|^2).
-        clip(P, yi - yj, (psi[i] - psi[j]) - 0.5 * (yi - yj).dot(yi + yj), k, scratch);
+        const double low = has_lo ? lo[i] - lo[j] : 0.0;
+        clip(P, yi - yj, ((psi[i] - psi[j]) + low) - 0.5 * (yi - yj).dot(yi + yj), k, scratch);
       }
       if (late_outline) {
         bool inside = true;

@@ -106,8 +106,14 @@ class PowerDiagrams {
   /// |y_i|^2, which places the bisector of two sites d apart only to eps |y|^2 / d; the
   /// offsets are what the regular triangulation's weights are made of (exactly) and keep
   /// their own precision, so the OMT solver iterates on them.
-  PowerCells at_offsets(const Eigen::VectorXd& psi) const;
-  std::optional<PowerCells> at_offsets_if_none_hidden(const Eigen::VectorXd& psi) const;
+  /// An optional low part `lo` makes the offsets psi + lo (double-double, as the solver
+  /// accumulates its Newton steps): the bisectors then use psi_i - psi_j + lo_i - lo_j, the
+  /// first difference exact for the close sites where it matters (Sterbenz), while the
+  /// triangulation's weights are 2 psi (a neighbour missed by that rounding has an edge of
+  /// length ~eps |psi| / d, so it changes the cells only to second order).
+  PowerCells at_offsets(const Eigen::VectorXd& psi, const Eigen::VectorXd& lo = {}) const;
+  std::optional<PowerCells> at_offsets_if_none_hidden(const Eigen::VectorXd& psi,
+                                                      const Eigen::VectorXd& lo = {}) const;
   /// The offsets of heights h.
   Eigen::VectorXd offsets(const Eigen::VectorXd& h) const;
   /// For each query point x, the site whose cell at heights h holds it (argmax_i <x, y_i> +
@@ -115,7 +121,7 @@ class PowerDiagrams {
   std::vector<int> locate(const Eigen::VectorXd& h, const Points& queries) const;
 
  private:
-  std::optional<PowerCells> build(const Eigen::VectorXd& psi, bool fail_if_hidden) const;
+  std::optional<PowerCells> build(const Eigen::VectorXd& psi, const Eigen::VectorXd& lo, bool fail_if_hidden) const;
   Domain domain_;
   Points sites_;
   std::vector<int> order_;  // Hilbert order of the sites
