@@ -126,7 +126,7 @@ int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X
   return folds;
 }
 
-int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, double allowed, int& folded) {
+int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded) {
   const int nv = m.num_vertices(), nf = m.num_faces();
   auto folded_face = [&](const mesh::Vertices& Z, int f) { return conformal::face_folded(m, Z, f, true); };
   auto count_folds = [&](const mesh::Vertices& Z) {
@@ -135,6 +135,13 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, do
     return k;
   };
   folded = count_folds(X);
+  auto distortion = [&](const mesh::Vertices& Z) {
+    const Eigen::VectorXd r = quality::area_log_ratios(m, Z);
+    double sum = 0;
+    for (Eigen::Index f = 0; f < r.size(); ++f) sum += std::abs(r[f]);
+    return sum / static_cast<double>(r.size());
+  };
+  const double allowed = distortion(X);
   const Eigen::VectorXd area = mesh::face_areas(m);
   std::vector<std::vector<int>> star(nv), ring(nv);
   for (int f = 0; f < nf; ++f)
@@ -185,7 +192,7 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, do
       untangle_by_barrier(faces, back, is_free);
       if (!back.allFinite()) continue;
       const int left = count_folds(back);
-      const double after = quality::measure(m, back, quality::Target::kSphere).area_distortion_log_abs.mean;
+      const double after = distortion(back);
       if (left < folded && after <= allowed) {
         X = std::move(back);
         folded = left;

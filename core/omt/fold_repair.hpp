@@ -38,13 +38,11 @@ int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X
                         double theta = 0.9);
 
 /// Repairs the folded faces of a map X of closed genus-0 `m` onto the unit sphere, one
-/// cluster at a time: the free vertices within a few rings of a folded face go onto the
-/// tangent plane of the cluster's centre by the gnomonic projection (a chord triangle faces
-/// outward exactly when its image turns counter-clockwise), are untangled there against
-/// reference triangles of their faces' target areas (m's face areas scaled to the map's, and
-/// by the projection's area factor), and go back. A cluster's repair is kept only if it
-/// leaves fewer folds and a mean |log area ratio| no more than `allowed`. Returns the
-/// vertices moved; `folded` gets the folds left.
-int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, double allowed, int& folded);
+/// cluster at a time: the vertices within 1, 2, 4, 8 or 16 rings of a folded face are
+/// untangled against reference triangles of their faces' target areas (m's face areas
+/// scaled to the map's). A cluster's repair is kept only if it leaves fewer folds and a mean
+/// |log area ratio| (quality::area_log_ratios) no larger than the map's before the repair.
+/// Returns the vertices moved; `folded` gets the folds left.
+int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded);
 
 }  // namespace brenier::omt

@@ -38,6 +38,20 @@ double angle(const Vec3& a, const Vec3& b, const Vec3& c) {  // at a
 
 }  // namespace
 
+Eigen::VectorXd area_log_ratios(const mesh::TriMesh& surface, const mesh::Vertices& image) {
+  const int nf = surface.num_faces();
+  Eigen::VectorXd a_src(nf), a_img(nf);
+  for (int f = 0; f < nf; ++f) {
+    const int i = surface.F(f, 0), j = surface.F(f, 1), k = surface.F(f, 2);
+    a_src[f] = 0.5 * (surface.V.row(j) - surface.V.row(i)).cross(surface.V.row(k) - surface.V.row(i)).norm();
+    a_img[f] = 0.5 * (image.row(j) - image.row(i)).cross(image.row(k) - image.row(i)).norm();
+  }
+  const double ts = a_src.sum(), ti = a_img.sum();
+  Eigen::VectorXd out(nf);
+  for (int f = 0; f < nf; ++f) out[f] = std::log((a_img[f] / ti) / (a_src[f] / ts));
+  return out;
+}
+
 Stats stats(std::vector<double> v) {
   Stats s;
   if (v.empty()) return s;
@@ -65,7 +79,6 @@ MapQuality measure(const mesh::TriMesh& surface, const mesh::Vertices& image, Ta
       x[k] = image.row(surface.F(f, k)).transpose();
     }
     Vec3 n = (x[1] - x[0]).cross(x[2] - x[0]);
-    a_src[f] = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).norm();
     a_img[f] = 0.5 * n.norm();
     bool flipped = target == Target::kPlane ? !(n.z() > 0) : !(n.dot(x[0] + x[1] + x[2]) > 0);
     if (flipped) {
@@ -85,13 +98,9 @@ MapQuality measure(const mesh::TriMesh& surface, const mesh::Vertices& image, Ta
     q.qc_ratio[f] = svd.singularValues()[0] / svd.singularValues()[1];
   }
   q.angle_distortion_deg = stats(angles);
-  double ts = a_src.sum(), ti = a_img.sum();
-  q.area_distortion_log.resize(nf);
+  q.area_distortion_log = area_log_ratios(surface, image);
   std::vector<double> abs_log(nf);
-  for (int f = 0; f < nf; ++f) {
-    q.area_distortion_log[f] = std::log((a_img[f] / ti) / (a_src[f] / ts));
-    abs_log[f] = std::abs(q.area_distortion_log[f]);
-  }
+  for (int f = 0; f < nf; ++f) abs_log[f] = std::abs(q.area_distortion_log[f]);
   q.area_distortion_log_abs = stats(abs_log);
   std::vector<double> qc(q.qc_ratio.data(), q.qc_ratio.data() + nf);
   qc.erase(std::remove_if(qc.begin(), qc.end(), [](double v) { return !std::isfinite(v); }), qc.end());

@@ -32,6 +32,10 @@ struct MapQuality {
 /// sphere, when it faces inward (normal . centroid <= 0).
 MapQuality measure(const mesh::TriMesh& surface, const mesh::Vertices& image, Target target);
 
+/// The signed log area ratios log((A'/sum A') / (A/sum A)) of every face, A' the image's
+/// (chord) triangle areas: MapQuality::area_distortion_log without the rest of measure().
+Eigen::VectorXd area_log_ratios(const mesh::TriMesh& surface, const mesh::Vertices& image);
+
 /// Per-face Beltrami coefficient mu = f_zbar / f_z of the piecewise-affine map from map a's
 /// triangles to map b's (both #V by 3, planar or each face in its own tangent frame).
 /// |mu| < 1 on orientation-preserving faces; 0 where the two maps differ by a similarity.

@@ -593,7 +593,7 @@ TEST(FoldRepair, UnfoldsAPushedVertexOnTheSphereLocallyAndKeepsAreas) {
   };
   mesh::Vertices X = m.V;
   int folded = -1;
-  EXPECT_EQ(omt::repair_sphere_folds_by_barrier(m, X, 1.0, folded), 0);
+  EXPECT_EQ(omt::repair_sphere_folds_by_barrier(m, X, folded), 0);
   EXPECT_EQ(folded, 0);
   EXPECT_EQ(X, m.V);
 
@@ -606,7 +606,7 @@ TEST(FoldRepair, UnfoldsAPushedVertexOnTheSphereLocallyAndKeepsAreas) {
   const int folds_before = quality::measure(m, X, quality::Target::kSphere).flipped_faces;
   ASSERT_GE(folds_before, 2);
   const double before = distortion(X);
-  const int moved = omt::repair_sphere_folds_by_barrier(m, X, before, folded);
+  const int moved = omt::repair_sphere_folds_by_barrier(m, X, folded);
   EXPECT_GT(moved, 0);
   EXPECT_EQ(folded, 0);
   EXPECT_EQ(quality::measure(m, X, quality::Target::kSphere).flipped_faces, 0);
