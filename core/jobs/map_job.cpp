@@ -150,6 +150,10 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
     apo.omt.max_iterations = o.max_iterations;
     apo.omt.progress = solver_progress(progress, "omt", apo.omt.tolerance, 0.3, 0.95);
     apo.t = o.t;
+    if (progress)
+      apo.repair_progress = [progress](int round, int folds) {
+        return progress(Progress{"fold repair", 0.95, round + 1, static_cast<double>(folds)});
+      };
     if (!o.weights.empty()) {
       if (static_cast<int64_t>(o.weights.size()) != cm.input_vertices)
         invalid(std::to_string(o.weights.size()) + " weights for " + std::to_string(cm.input_vertices) + " vertices");

@@ -156,7 +156,8 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   out.relaxed_vertices = conformal::untangle(m, out.positions, true, fixed, out.folded_faces);
   // Folds the local steps left: the barrier repair of fold_repair.hpp, kept only where it
   // leaves the map's area distortion no larger than it was.
-  if (out.folded_faces > 0) out.relaxed_vertices += repair_sphere_folds_by_barrier(m, out.positions, out.folded_faces);
+  if (out.folded_faces > 0)
+    out.relaxed_vertices += repair_sphere_folds_by_barrier(m, out.positions, out.folded_faces, opt.repair_progress);
   return out;
 }
 

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <functional>
 
 #include "conformal/conformal_map.hpp"
 #include "mesh/mesh.hpp"
@@ -20,6 +21,9 @@ struct AreaPreservingOptions {
   Eigen::VectorXd weights;
   /// The polar-factorization family phi_t (sec. 3.2.8): 0 = area-preserving, 1 = conformal.
   double t = 0;
+  /// Called before each round of the sphere's fold repair with (round, folds left); false
+  /// cancels (Error(kCancelled)), as the solvers' progress callbacks do.
+  std::function<bool(int round, int folds)> repair_progress;
 };
 
 struct AreaPreservingMap {

@@ -7,6 +7,7 @@
 #include <limits>
 #include <stdexcept>
 
+#include "common/error.hpp"
 #include "conformal/conformal_map.hpp"
 #include "mesh/geometry.hpp"
 #include "quality/quality.hpp"
@@ -126,7 +127,8 @@ int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X
   return folds;
 }
 
-int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded) {
+int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded,
+                                   const std::function<bool(int round, int folds)>& keep_going) {
   const int nv = m.num_vertices(), nf = m.num_faces();
   auto folded_face = [&](const mesh::Vertices& Z, int f) { return conformal::face_folded(m, Z, f, true); };
   auto count_folds = [&](const mesh::Vertices& Z) {
@@ -156,6 +158,7 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
     for (int f = 0; f < nf && seed < 0; ++f)
       if (!tried[f] && folded_face(X, f)) seed = f;
     if (seed < 0) break;
+    if (keep_going && !keep_going(round, folded)) fail(ErrorCode::kCancelled, "fold repair cancelled");
     tried[seed] = 1;
     // Target areas in the energy's measure det(a, b, c) / 2, whose sum is the map's.
     double total = 0;

@@ -15,6 +15,7 @@
 
 #include <Eigen/Core>
 #include <array>
+#include <functional>
 #include <vector>
 
 #include "mesh/mesh.hpp"
@@ -42,7 +43,9 @@ int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X
 /// untangled against reference triangles of their faces' target areas (m's face areas
 /// scaled to the map's). A cluster's repair is kept only if it leaves fewer folds and a mean
 /// |log area ratio| (quality::area_log_ratios) no larger than the map's before the repair.
-/// Returns the vertices moved; `folded` gets the folds left.
-int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded);
+/// Returns the vertices moved; `folded` gets the folds left. `keep_going`, if given, is
+/// called before each cluster with (round, folds left); false cancels (Error(kCancelled)).
+int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded,
+                                   const std::function<bool(int round, int folds)>& keep_going = {});
 
 }  // namespace brenier::omt

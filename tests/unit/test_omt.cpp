@@ -617,6 +617,14 @@ TEST(FoldRepair, UnfoldsAPushedVertexOnTheSphereLocallyAndKeepsAreas) {
       EXPECT_EQ(X.row(u), m.V.row(u)) << u;
     }
   for (int u = 0; u < m.num_vertices(); ++u) EXPECT_NEAR(X.row(u).norm(), 1.0, 1e-12);
+  // A cancelled repair stops before its first cluster.
+  X.row(v) = (m.V.row(v) + 2.5 * (m.V.row(w) - m.V.row(v))).normalized();
+  try {
+    omt::repair_sphere_folds_by_barrier(m, X, folded, [](int, int) { return false; });
+    ADD_FAILURE() << "not cancelled";
+  } catch (const Error& e) {
+    EXPECT_EQ(e.code(), ErrorCode::kCancelled);
+  }
 }
 
 // The solver iterates on the offsets psi = h + |y|^2 / 2 (half the power weights), not on
