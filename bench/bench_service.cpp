@@ -84,6 +84,19 @@ struct Server {
   }
 };
 
+// The small disk every submission maps.
+std::string upload_small(brenier::client::Client& c) {
+  return c.upload_bytes(brenier::mesh::write_mesh_string(brenier::mesh::make_disk(6), brenier::mesh::Format::kOff),
+                        "small.off")
+      .id();
+}
+
+void report(const char* label, int clients, const char* what, double wall, std::vector<double> ms) {
+  std::sort(ms.begin(), ms.end());
+  std::printf("%s: %d clients x 50 submissions (%s) in %.2f s: p50 %.2f ms, p99 %.2f ms, max %.2f ms\n", label,
+              clients, what, wall, ms[ms.size() / 2], ms[static_cast<size_t>(ms.size() * 0.99)], ms.back());
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -127,10 +140,7 @@ int main(int argc, char** argv) {
       r.mutable_map()->set_method(pb::AREA_PRESERVING);
       c0.submit(r);
     }
-    const std::string id =
-        c0.upload_bytes(brenier::mesh::write_mesh_string(brenier::mesh::make_disk(6), brenier::mesh::Format::kOff),
-                        "small.off")
-            .id();
+    const std::string id = upload_small(c0);
     std::vector<std::vector<double>> lat(clients);
     std::vector<std::thread> th;
     const auto t0 = Clock::now();
@@ -153,9 +163,7 @@ int main(int argc, char** argv) {
     const double wall = since(t0);
     std::vector<double> all;
     for (auto& v : lat) all.insert(all.end(), v.begin(), v.end());
-    std::sort(all.begin(), all.end());
-    std::printf("submit: %d clients x 50 submissions (%s) in %.2f s: p50 %.2f ms, p99 %.2f ms, max %.2f ms\n", clients,
-                what, wall, all[all.size() / 2], all[static_cast<size_t>(all.size() * 0.99)], all.back());
+    report("submit", clients, what, wall, all);
   };
   // 2b. the same with a load generator that does not compete for the cores: 32 clients, each its own
   // channel and TCP connection (a local subchannel pool), whose calls are issued from one driver
@@ -166,10 +174,7 @@ int main(int argc, char** argv) {
                                   const char* what) {
     Server s(brenierd, work + "/data2", flags);
     auto c0 = s.client();
-    const std::string id =
-        c0.upload_bytes(brenier::mesh::write_mesh_string(brenier::mesh::make_disk(6), brenier::mesh::Format::kOff),
-                        "small.off")
-            .id();
+    const std::string id = upload_small(c0);
     std::vector<std::unique_ptr<pb::Brenier::Stub>> stubs;
     for (int t = 0; t < clients; ++t) {
       grpc::ChannelArguments args;
@@ -228,10 +233,7 @@ int main(int argc, char** argv) {
     lock.unlock();
     const double wall = since(t0);
     if (failed) throw std::runtime_error("submissions failed");
-    std::sort(lat.begin(), lat.end());
-    std::printf("submit, one driver thread: %d clients x 50 submissions (%s) in %.2f s: p50 %.2f ms, p99 %.2f ms, "
-                "max %.2f ms\n",
-                clients, what, wall, lat[lat.size() / 2], lat[static_cast<size_t>(lat.size() * 0.99)], lat.back());
+    report("submit, one driver thread", clients, what, wall, lat);
   };
   submit_latency_async(32, 100, {"--queue", "100000"}, "each every 0.1 s on average (Poisson): 320 submissions/s");
   submit_latency_async(32, 20, {"--queue", "100000"}, "each every 20 ms on average: 1,600 submissions/s");

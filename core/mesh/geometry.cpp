@@ -13,14 +13,16 @@
 
 namespace brenier::mesh {
 
-Eigen::VectorXd face_areas(const TriMesh& m) {
-  Eigen::VectorXd a(m.F.rows());
-  for (int f = 0; f < m.F.rows(); ++f) {
-    Eigen::Vector3d p0 = m.V.row(m.F(f, 0)), p1 = m.V.row(m.F(f, 1)), p2 = m.V.row(m.F(f, 2));
+Eigen::VectorXd face_areas(const Faces& F, const Vertices& X) {
+  Eigen::VectorXd a(F.rows());
+  for (int f = 0; f < F.rows(); ++f) {
+    Eigen::Vector3d p0 = X.row(F(f, 0)), p1 = X.row(F(f, 1)), p2 = X.row(F(f, 2));
     a[f] = 0.5 * (p1 - p0).cross(p2 - p0).norm();
   }
   return a;
 }
+
+Eigen::VectorXd face_areas(const TriMesh& m) { return face_areas(m.F, m.V); }
 
 double total_area(const TriMesh& m) { return face_areas(m).sum(); }
 

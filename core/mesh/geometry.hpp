@@ -12,6 +12,8 @@ namespace brenier::mesh {
 
 /// #F face areas.
 Eigen::VectorXd face_areas(const TriMesh& mesh);
+/// The areas of the triangles F over positions X (e.g. a map's image of a mesh).
+Eigen::VectorXd face_areas(const Faces& F, const Vertices& X);
 double total_area(const TriMesh& mesh);
 /// Area-weighted centroid of the surface (of its faces, not of its vertices).
 Eigen::Vector3d area_centroid(const TriMesh& mesh);

@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 #include <LBFGS.h>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -13,7 +14,15 @@
 #include "quality/quality.hpp"
 
 namespace brenier::omt {
+namespace {
 
+struct BarrierFace {
+  std::array<int, 3> v;     // indices into the positions, counter-clockwise in the reference
+  Eigen::Matrix2d ref_inv;  // inverse of [q1 - q0, q2 - q0] of the reference triangle
+  double weight = 0;        // the reference triangle's area
+};
+
+// The reference triangle of a face with 3-D corners a, b, c, scaled to area `area`.
 BarrierFace barrier_face(int i, int j, int k, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
                          const Eigen::Vector3d& c, double area) {
   // The face in its own plane: q0 = 0, q1 on the first axis, q2 above it (counter-clockwise).
@@ -30,8 +39,6 @@ BarrierFace barrier_face(int i, int j, int k, const Eigen::Vector3d& a, const Ei
   f.weight = area;
   return f;
 }
-
-namespace {
 
 // The energy of fold_repair.hpp over the free vertices, for L-BFGS. A free vertex is
 // x = y / |y| for unknowns y in R^3, so every trial point lies on the sphere. The face's
@@ -84,10 +91,11 @@ struct BarrierEnergy {
   }
 };
 
-}  // namespace
-
+// Moves the rows of X (points on the unit sphere) with free[row] != 0 to minimize the energy
+// over `faces`, keeping them on the sphere; theta weighs the area term. Returns the number
+// of `faces` whose chord triangles still do not face outward (0 on success).
 int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X, const std::vector<char>& free,
-                        double theta) {
+                        double theta = 0.9) {
   std::vector<int> var(X.rows(), -1), rows;
   int n = 0;
   for (Eigen::Index r = 0; r < X.rows(); ++r)
@@ -127,6 +135,8 @@ int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X
   return folds;
 }
 
+}  // namespace
+
 int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded,
                                    const std::function<bool(int round, int folds)>& keep_going) {
   const int nv = m.num_vertices(), nf = m.num_faces();
@@ -151,6 +161,13 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
       star[m.F(f, k)].push_back(f);
       ring[m.F(f, k)].push_back(m.F(f, (k + 1) % 3));
     }
+  // Target areas in the energy's measure det(a, b, c) / 2, whose sum is the map's.
+  auto target_scale = [&] {
+    double total = 0;
+    for (int f = 0; f < nf; ++f) total += 0.5 * X.row(m.F(f, 0)).dot(X.row(m.F(f, 1)).cross(X.row(m.F(f, 2))));
+    return total / area.sum();
+  };
+  double scale = target_scale();
   int moved = 0;
   std::vector<char> tried(nf, 0);
   for (int round = 0; round < nf && folded > 0; ++round) {  // each face seeds once
@@ -160,10 +177,6 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
     if (seed < 0) break;
     if (keep_going && !keep_going(round, folded)) fail(ErrorCode::kCancelled, "fold repair cancelled");
     tried[seed] = 1;
-    // Target areas in the energy's measure det(a, b, c) / 2, whose sum is the map's.
-    double total = 0;
-    for (int f = 0; f < nf; ++f) total += 0.5 * X.row(m.F(f, 0)).dot(X.row(m.F(f, 1)).cross(X.row(m.F(f, 2))));
-    const double scale = total / area.sum();
     int last_free = -1;
     for (int rings : {1, 2, 4, 8, 16}) {
       // The vertices within `rings` rings of the seed face, and the faces around them.
@@ -200,6 +213,7 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
         X = std::move(back);
         folded = left;
         moved += nfree;
+        scale = target_scale();
         break;
       }
     }

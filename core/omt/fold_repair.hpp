@@ -13,30 +13,11 @@
 // turns the right way the energy is a barrier and no fold comes back.
 #pragma once
 
-#include <Eigen/Core>
-#include <array>
 #include <functional>
-#include <vector>
 
 #include "mesh/mesh.hpp"
 
 namespace brenier::omt {
-
-struct BarrierFace {
-  std::array<int, 3> v;  // indices into the positions, counter-clockwise in the reference
-  Eigen::Matrix2d ref_inv;  // inverse of [q1 - q0, q2 - q0] of the reference triangle
-  double weight = 0;        // the reference triangle's area
-};
-
-/// The reference triangle of a face with 3-D corners a, b, c, scaled to area `area`.
-BarrierFace barrier_face(int i, int j, int k, const Eigen::Vector3d& a, const Eigen::Vector3d& b,
-                         const Eigen::Vector3d& c, double area);
-
-/// Moves the rows of X (points on the unit sphere) with free[row] != 0 to minimize the
-/// energy above over `faces`, keeping them on the sphere; theta weighs the area term. Returns
-/// the number of `faces` whose chord triangles still do not face outward (0 on success).
-int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X, const std::vector<char>& free,
-                        double theta = 0.9);
 
 /// Repairs the folded faces of a map X of closed genus-0 `m` onto the unit sphere, one
 /// cluster at a time: the vertices within 1, 2, 4, 8 or 16 rings of a folded face are

@@ -815,10 +815,6 @@ Eigen::VectorXd PowerDiagrams::offsets(const Eigen::VectorXd& h) const {
 
 PowerCells PowerDiagrams::operator()(const Eigen::VectorXd& h) const { return *build(offsets(h), {}, false); }
 
-std::optional<PowerCells> PowerDiagrams::if_none_hidden(const Eigen::VectorXd& h) const {
-  return build(offsets(h), {}, true);
-}
-
 PowerCells PowerDiagrams::at_offsets(const Eigen::VectorXd& psi, const Eigen::VectorXd& lo) const {
   return *build(psi, lo, false);
 }

@@ -98,10 +98,7 @@ class PowerDiagrams {
   ~PowerDiagrams();
   /// The diagram at heights h (as power_cells).
   PowerCells operator()(const Eigen::VectorXd& h) const;
-  /// The diagram at h, or nothing as soon as one site is found hidden (its cell empty):
-  /// a rejected trial step then costs a fraction of a diagram.
-  std::optional<PowerCells> if_none_hidden(const Eigen::VectorXd& h) const;
-  /// The same at the offsets psi_i = h_i + |y_i|^2 / 2 (half the power weight; psi = 0 is
+  /// The diagram at the offsets psi_i = h_i + |y_i|^2 / 2 (half the power weight; psi = 0 is
   /// the Voronoi diagram). Heights of sites far from the origin carry the round-off of
   /// |y_i|^2, which places the bisector of two sites d apart only to eps |y|^2 / d; the
   /// offsets are what the regular triangulation's weights are made of (exactly) and keep
@@ -112,6 +109,8 @@ class PowerDiagrams {
   /// triangulation's weights are 2 psi (a neighbour missed by that rounding has an edge of
   /// length ~eps |psi| / d, so it changes the cells only to second order).
   PowerCells at_offsets(const Eigen::VectorXd& psi, const Eigen::VectorXd& lo = {}) const;
+  /// The same, or nothing as soon as one site is found hidden (its cell empty): a rejected
+  /// trial step then costs a fraction of a diagram.
   std::optional<PowerCells> at_offsets_if_none_hidden(const Eigen::VectorXd& psi,
                                                       const Eigen::VectorXd& lo = {}) const;
   /// The offsets of heights h.

@@ -7,6 +7,8 @@
 #include <limits>
 #include <numbers>
 
+#include "mesh/geometry.hpp"
+
 namespace brenier::quality {
 namespace {
 
@@ -40,12 +42,7 @@ double angle(const Vec3& a, const Vec3& b, const Vec3& c) {  // at a
 
 Eigen::VectorXd area_log_ratios(const mesh::TriMesh& surface, const mesh::Vertices& image) {
   const int nf = surface.num_faces();
-  Eigen::VectorXd a_src(nf), a_img(nf);
-  for (int f = 0; f < nf; ++f) {
-    const int i = surface.F(f, 0), j = surface.F(f, 1), k = surface.F(f, 2);
-    a_src[f] = 0.5 * (surface.V.row(j) - surface.V.row(i)).cross(surface.V.row(k) - surface.V.row(i)).norm();
-    a_img[f] = 0.5 * (image.row(j) - image.row(i)).cross(image.row(k) - image.row(i)).norm();
-  }
+  const Eigen::VectorXd a_src = mesh::face_areas(surface), a_img = mesh::face_areas(surface.F, image);
   const double ts = a_src.sum(), ti = a_img.sum();
   Eigen::VectorXd out(nf);
   for (int f = 0; f < nf; ++f) out[f] = std::log((a_img[f] / ti) / (a_src[f] / ts));
@@ -70,7 +67,7 @@ MapQuality measure(const mesh::TriMesh& surface, const mesh::Vertices& image, Ta
   const int nf = surface.num_faces();
   std::vector<double> angles;
   angles.reserve(static_cast<size_t>(nf) * 3);
-  Eigen::VectorXd a_src(nf), a_img(nf);
+  Eigen::VectorXd a_img(nf);
   q.qc_ratio.resize(nf);
   for (int f = 0; f < nf; ++f) {
     Vec3 p[3], x[3];

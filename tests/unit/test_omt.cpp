@@ -162,7 +162,7 @@ TEST(PowerCells, TheFilteredInCircleTestAgreesWithTheExactOneNearDegeneracy) {
 TEST(PowerCells, DiagramsUpdatedByFlipsEqualDiagramsBuiltAnew) {
   // One PowerDiagrams object carries its regular triangulation from one set of heights to
   // the next by edge flips; every diagram must equal the one built from nothing, including
-  // after steps that hide sites (then if_none_hidden must say so) and large jumps.
+  // after steps that hide sites (then at_offsets_if_none_hidden must say so) and large jumps.
   const int n = 3000;
   Points y = random_in_disk(n, 21, 1.0);
   std::mt19937 rng(5);
@@ -178,7 +178,7 @@ TEST(PowerCells, DiagramsUpdatedByFlipsEqualDiagramsBuiltAnew) {
     for (int i = 0; i < n; ++i)
       next[i] += a * std::sin(3 * kx * y(i, 0) + 2 * ky * y(i, 1)) * y.row(i).squaredNorm() + noise * N(rng);
     const omt::PowerCells fresh = omt::power_cells(Domain::unit_disk(), y, next);
-    const std::optional<omt::PowerCells> kept = diagrams.if_none_hidden(next);
+    const std::optional<omt::PowerCells> kept = diagrams.at_offsets_if_none_hidden(diagrams.offsets(next));
     if (!kept) {  // a hidden site: its cell is empty however the diagram is built
       ++hidden_steps;
       EXPECT_GT(fresh.empty_cells, 0) << step;
