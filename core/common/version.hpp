@@ -7,6 +7,8 @@ namespace brenier {
 /// predicate): per-shape results cached by content hash and matrix tiles carry it, so that
 /// those of an older engine are neither reused after an upgrade nor merged with newer tiles.
 /// 2: the OT solver refactors its preconditioner by the iterations spent on it.
-inline constexpr const char* kNumericsVersion = "4";
+/// 5: sphere maps: the local Tutte steps and the barrier repair refuse moves that change the
+///    covering degree; crowded conformal maps transport from a spread start.
+inline constexpr const char* kNumericsVersion = "5";
 
 }  // namespace brenier

@@ -171,6 +171,16 @@ int untangle(const mesh::TriMesh& m, mesh::Vertices& X, bool sphere, const std::
     for (int f : star[v]) n += face_folded(m, X, f, sphere);
     return n;
   };
+  // On the sphere, the signed area of v's star: a move may change it only by round-off.
+  // Any position of v leaves it the same modulo 4 pi (the link is held), and a change of
+  // 4 pi means the star now wraps around the sphere with its faces turned outward: fewer
+  // folds, but a map of degree 2 (cactus and u came out covering the sphere 4 times).
+  auto star_area = [&](int v) {
+    double a = 0;
+    for (int f : star[v])
+      a += quality::geodesic_triangle_area(X.row(m.F(f, 0)), X.row(m.F(f, 1)), X.row(m.F(f, 2)));
+    return a;
+  };
   std::vector<char> moved(nv, 0);
   int count = 0;
   // Candidate positions for a vertex v of folded face f: its mirror image across the line
@@ -209,11 +219,13 @@ int untangle(const mesh::TriMesh& m, mesh::Vertices& X, bool sphere, const std::
       if (!face_folded(m, X, f, sphere)) continue;  // fixed meanwhile
       const Eigen::RowVector3d old = X.row(v);
       const int before = folded_around(v);
+      const double area_before = sphere ? star_area(v) : 0;
       Eigen::RowVector3d best = old;
       int best_n = before;
       for (const Eigen::RowVector3d& cand : {mirror(v, f), average(v)}) {
         if (!cand.allFinite()) continue;
         X.row(v) = cand;
+        if (sphere && std::abs(star_area(v) - area_before) > std::numbers::pi) continue;
         int n = folded_around(v);
         // Strict improvements always; sideways moves on odd rounds, to get out of a knot.
         if (n < best_n || (n == best_n && best == old && (round & 1))) {
@@ -294,7 +306,10 @@ double mean_value_weights(const std::vector<std::pair<int, int>>& fan, int v, co
 // a convex fixed outline (the disk's boundary) and positive weights Floater's theorem
 // guarantees an embedding; on a region inside, the map around it plays the outline.
 // Returns the vertices whose weights were replaced, -1 when the solve failed.
-int tutte_repair(const mesh::TriMesh& m, const Fans& fan, mesh::Vertices& X, const std::vector<char>& region) {
+// With surface_weights, every region vertex takes the surface's own MVC (the map's
+// positions of the region are not looked at).
+int tutte_repair(const mesh::TriMesh& m, const Fans& fan, mesh::Vertices& X, const std::vector<char>& region,
+                 bool surface_weights = false) {
   const int nv = m.num_vertices();
   std::vector<int> index(nv, -1);
   int n = 0;
@@ -307,9 +322,12 @@ int tutte_repair(const mesh::TriMesh& m, const Fans& fan, mesh::Vertices& X, con
   int replaced = 0;
   for (int v = 0; v < nv; ++v) {
     if (index[v] < 0) continue;
-    double total = mean_value_weights(fan[v], v, X, true, w);
-    bool good = std::abs(total - 2 * std::numbers::pi) < 1e-9;
-    for (auto [k, x] : w) good = good && x > 0 && std::isfinite(x);
+    bool good = !surface_weights;
+    if (good) {
+      const double total = mean_value_weights(fan[v], v, X, true, w);
+      good = std::abs(total - 2 * std::numbers::pi) < 1e-9;
+      for (auto [k, x] : w) good = good && x > 0 && std::isfinite(x);
+    }
     if (!good) {
       mean_value_weights(fan[v], v, m.V, false, w);
       ++replaced;
@@ -375,6 +393,10 @@ int fix_round_off_ears(const mesh::TriMesh& m, mesh::Vertices& X, const std::vec
 }
 
 }  // namespace
+
+bool tutte_fill(const mesh::TriMesh& m, mesh::Vertices& X, const std::vector<char>& region) {
+  return tutte_repair(m, oriented_fans(m), X, region, /*surface_weights=*/true) >= 0;
+}
 
 // Planar positions X (#V by 3, z = 0) of `m`: folded faces are repaired by a Tutte
 // embedding of the free vertices within a few rings of them, the region doubling until no

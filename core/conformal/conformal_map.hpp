@@ -61,6 +61,13 @@ bool face_folded(const mesh::TriMesh& mesh, const mesh::Vertices& X, int f, bool
 int repair_planar_folds(const mesh::TriMesh& mesh, mesh::Vertices& X, const std::vector<char>& fixed,
                         int& folded);
 
+/// Places the vertices marked in `region` of a planar map X (#V by 3, z = 0) by a Tutte
+/// embedding with the surface's own mean value coordinates (Floater 2003: positive, so with
+/// a convex outline of unmarked vertices the result has no fold), the unmarked vertices
+/// held where X has them; X's positions of the marked ones are not used. Returns false
+/// when the linear solve failed (X unchanged then).
+bool tutte_fill(const mesh::TriMesh& mesh, mesh::Vertices& X, const std::vector<char>& region);
+
 /// Boundary curvature targets of the disk map (the turning angles of a polygon with edge
 /// lengths L, in loop order, inscribed in a circle): turning[i] at vertex i between edges
 /// i-1 and i, summing to 2 pi; tau[i] = tan(a_i / 2) for the central angles a_i, which give

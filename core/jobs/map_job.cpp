@@ -200,6 +200,13 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
                                        ")" + why + "; pass --allow-flips to write it anyway");
   }
 
+  if (std::abs(q.degree - 1) > 1e-6 && !o.allow_flips) {
+    char buf[160];
+    std::snprintf(buf, sizeof buf, ": the map covers the sphere %.0f times, so it is no bijection; pass --allow-flips to write it anyway",
+                  q.degree);
+    fail(ErrorCode::kNotConverged, what + buf);
+  }
+
   const mesh::Topology topo = mesh::compute_topology(cm.mesh);
   nlohmann::json& j = out.report;
   j["mesh"] = {{"vertices", topo.vertices}, {"faces", topo.faces}, {"boundary_loops", topo.boundary_loops},
@@ -222,8 +229,12 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
                 {"max_relative_area_error", ap->omt.max_relative_error},
                 {"converged", ap->omt.converged},
                 {"factorizations", ap->omt.factorizations},
-                {"relaxed_vertices", ap->relaxed_vertices}};
+                {"relaxed_vertices", ap->relaxed_vertices},
+                {"start", ap->spreading_stages ? "spread" : "conformal"},
+                {"spreading_stages", ap->spreading_stages},
+                {"spreading_newton_iterations", ap->spreading_newton_iterations}};
   j["quality"] = {{"flipped_faces", q.flipped_faces},
+                  {"degree", q.degree},
                   {"angle_distortion_deg", stats_json(q.angle_distortion_deg)},
                   {"area_distortion_log", stats_json(q.area_distortion_log_abs, "_abs")},
                   {"quasi_conformal", stats_json(q.quasi_conformal)}};

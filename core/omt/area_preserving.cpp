@@ -11,6 +11,7 @@
 #include "mesh/geometry.hpp"
 #include "mesh/topology.hpp"
 #include "omt/fold_repair.hpp"
+#include "quality/quality.hpp"
 
 namespace brenier::omt {
 
@@ -139,25 +140,191 @@ Points stereographic_sites(const mesh::TriMesh& m, const mesh::Vertices& X, Eige
   return sites;
 }
 
+namespace {
+
+// The shortest chord from each vertex to a neighbour under the map X.
+Eigen::VectorXd shortest_edges(const mesh::TriMesh& m, const mesh::Vertices& X) {
+  Eigen::VectorXd s = Eigen::VectorXd::Constant(m.num_vertices(), std::numeric_limits<double>::infinity());
+  for (int f = 0; f < m.num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) {
+      const int a = m.F(f, k), b = m.F(f, (k + 1) % 3);
+      const double d = (X.row(a) - X.row(b)).norm();
+      s[a] = std::min(s[a], d);
+      s[b] = std::min(s[b], d);
+    }
+  return s;
+}
+
+// One stage of the spreading start of area_preserving_sphere: the vertices marked
+// `deferred` (crowded below what the transport resolves) leave the transport for this
+// stage; the transport from the sphere to the other vertices' sites with their own masses
+// (scaled to the sphere's area) is solved to a loose tolerance, and each kept vertex goes
+// to its cell's centroid. The deferred vertices are then placed by a Tutte embedding (the
+// surface's own mean value weights) inside the kept ring around them, in the stereographic
+// plane. (Giving a crowded region's mass to its ring instead makes a cell ~1e-12 across
+// grow by 1e10 and the Newton direction there hides its neighbours at every step length.)
+// The ring now spans about the area its side of the surface fills, so the region inside it
+// comes out spread by that factor. Returns the new map on the sphere.
+mesh::Vertices spread_once(const mesh::TriMesh& m, const mesh::Vertices& X, const Eigen::VectorXd& nu,
+                           const std::vector<char>& deferred, const OmtOptions& omt, int stage, OmtResult& result) {
+  const int nv = m.num_vertices();
+  Eigen::Matrix3d R;
+  const Points all = stereographic_sites(m, X, R);
+  std::vector<int> slot(nv, -1);
+  int kept = 0;
+  for (int v = 0; v < nv; ++v)
+    if (!deferred[v]) slot[v] = kept++;
+  if (kept < 4)
+    fail(ErrorCode::kNotConverged, "the conformal sphere map crowds all but " + std::to_string(kept) +
+                                       " vertices below what double precision resolves");
+  Points sites(kept, 2);
+  Eigen::VectorXd mass = Eigen::VectorXd::Zero(kept);
+  for (int v = 0; v < nv; ++v)
+    if (slot[v] >= 0) sites.row(slot[v]) = all.row(v), mass[slot[v]] = nu[v];
+  OmtOptions loose = omt;
+  loose.tolerance = std::max(omt.tolerance, 1e-4);  // a start only: spread, not exact
+  loose.initial_h.resize(0);
+  result = solve_omt(Domain::stereographic_sphere(), sites, mass, loose);
+  if (!result.converged) {
+    char buf[200];
+    std::snprintf(buf, sizeof buf,
+                  "spreading the crowded conformal sphere map (stage %d, %d of %d vertices kept): the optimal "
+                  "transport did not converge, max relative cell-mass error %.2e",
+                  stage, kept, nv, result.max_relative_error);
+    fail(ErrorCode::kNotConverged, buf);
+  }
+  mesh::Vertices P = mesh::Vertices::Zero(nv, 3);
+  for (int v = 0; v < nv; ++v)
+    if (slot[v] >= 0) P.row(v).head<2>() = result.cells.centroid.row(slot[v]);
+  // Where the kept centroids around a crowded region do not form a simple polygon (their
+  // cells are far larger than their spacing there, so their order is loose), the Tutte
+  // region wraps around the sphere. The region then grows by 1, 2, 4, ... rings, its outline
+  // moving out to where the centroids are in order, until the map covers the sphere once.
+  std::vector<std::vector<int>> ring(nv);
+  for (int f = 0; f < m.num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) ring[m.F(f, k)].push_back(m.F(f, (k + 1) % 3));
+  std::vector<char> region = deferred;
+  mesh::Vertices Y(nv, 3);
+  for (int grown = 0, rings = 0;; ++grown) {
+    mesh::Vertices Q = P;
+    if (!conformal::tutte_fill(m, Q, region))
+      fail(ErrorCode::kNotConverged, "spreading the crowded conformal sphere map: the Tutte solve failed");
+    for (int v = 0; v < nv; ++v) {  // inverse stereographic projection, still turned by R
+      const double u = Q(v, 0), w = Q(v, 1), q = u * u + w * w;
+      Y.row(v) << 2 * u / (q + 1), 2 * w / (q + 1), (q - 1) / (q + 1);
+    }
+    if (std::abs(quality::sphere_degree(m.F, Y) - 1) < 1e-6) break;
+    if (grown == 6)
+      fail(ErrorCode::kNotConverged, "spreading the crowded conformal sphere map (stage " + std::to_string(stage) +
+                                         "): the placed region wraps around the sphere");
+    const int add = std::max(1, rings);
+    for (int r = 0; r < add; ++r) {
+      std::vector<char> next = region;
+      for (int v = 0; v < nv; ++v)
+        if (region[v])
+          for (int w : ring[v]) next[w] = 1;
+      region = std::move(next);
+    }
+    rings += add;
+  }
+  return Y * R;  // rows R^T y
+}
+
+}  // namespace
+
 AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
   const int nv = m.num_vertices();
   const Eigen::VectorXd nu = weighted_masses(m, opt);
   AreaPreservingMap out = starting_from(conformal::map_to_sphere(m, opt.conformal));
   const mesh::Vertices& X = out.conformal.positions;
-  Eigen::Matrix3d R;
-  const Points sites = stereographic_sites(m, X, R);
-  out.omt = transport_to_mesh_sites(m, Domain::stereographic_sphere(), sites, nu, opt.omt);
-  // Each vertex to its cell's centroid on the sphere, turned back.
-  out.positions = out.omt.cells.sphere_centroid * R;  // rows R^T c
-  if (opt.t > 0)
-    for (int v = 0; v < nv; ++v)
-      out.positions.row(v) = ((1 - opt.t) * out.positions.row(v) + opt.t * X.row(v)).normalized();
-  std::vector<char> fixed(nv, 0);
-  out.relaxed_vertices = conformal::untangle(m, out.positions, true, fixed, out.folded_faces);
-  // Folds the local steps left: the barrier repair of fold_repair.hpp, kept only where it
-  // leaves the map's area distortion no larger than it was.
-  if (out.folded_faces > 0)
-    out.relaxed_vertices += repair_sphere_folds_by_barrier(m, out.positions, out.folded_faces, opt.repair_progress);
+  // The start. Long protrusions (legs, tails, fingers) shrink exponentially under the
+  // conformal map: bull, camel, cow, dino, diplodocus and man put neighbouring vertices
+  // 1e-10 to 1e-15 apart on the sphere, where positions of size one keep few correct
+  // digits of their differences and the Newton direction's round-off alone hides such
+  // cells. Such maps (and any whose transport from the conformal start fails) start
+  // instead from a spread map: spread_once, repeated until no two neighbours are closer
+  // than kDefer, each stage deferring the vertices closer than that to a neighbour. The
+  // result is still exactly area-preserving cell by cell, but it is the polar factor of
+  // the spread start, not of the conformal map (out.spreading_stages > 0 says so).
+  constexpr double kCrowded = 1e-8;  // armadillo's 3e-8 transports from the conformal start
+  constexpr double kDefer = 1e-6;
+  constexpr int kMaxStages = 10;
+  auto transport_from = [&](const mesh::Vertices& start) {
+    Eigen::Matrix3d R;
+    out.omt = transport_to_mesh_sites(m, Domain::stereographic_sphere(), stereographic_sites(m, start, R), nu, opt.omt);
+    out.positions = out.omt.cells.sphere_centroid * R;  // each vertex to its cell's centroid, turned back
+  };
+  // The centroids, blended toward the conformal map for t > 0, then repaired: local Tutte
+  // steps, then the barrier repair of fold_repair.hpp on the folds they leave, kept only
+  // where it leaves the map's area distortion no larger and its covering degree 1. A map
+  // that wraps around the sphere more than once is beyond local repair: it is reported.
+  auto finish = [&] {
+    if (opt.t > 0)
+      for (int v = 0; v < nv; ++v)
+        out.positions.row(v) = ((1 - opt.t) * out.positions.row(v) + opt.t * X.row(v)).normalized();
+    std::vector<char> fixed(nv, 0);
+    out.relaxed_vertices = conformal::untangle(m, out.positions, true, fixed, out.folded_faces);
+    out.degree = quality::sphere_degree(m.F, out.positions);
+    if (out.folded_faces > 0 && std::abs(out.degree - 1) < 1e-6) {
+      out.relaxed_vertices += repair_sphere_folds_by_barrier(m, out.positions, out.folded_faces, opt.repair_progress);
+      out.degree = quality::sphere_degree(m.F, out.positions);
+    }
+    return out.folded_faces == 0 && std::abs(out.degree - 1) < 1e-6;
+  };
+  bool spread = shortest_edges(m, X).minCoeff() < kCrowded;
+  if (!spread) {
+    try {
+      transport_from(X);
+    } catch (const Error& e) {
+      if (e.code() != ErrorCode::kNotConverged) throw;
+      spread = true;  // e.g. armadillo on some processors: the Voronoi start cannot take a step
+    }
+  }
+  if (!spread) {
+    finish();
+    return out;
+  }
+  // Two tries at the spread start: after each stage the folds it left get local Tutte
+  // steps only (cheap; camel and cow come out bijective this way), or also the barrier
+  // repair (bull and armadillo need it: the next stage's kept centroids are then in order,
+  // where the first way leaves their regions wrapped). The first bijective map is kept,
+  // else the second try's, reported as it is.
+  for (int attempt = 0; attempt < 2; ++attempt) {
+    const bool repair_stages = attempt == 1;
+    out.spreading_stages = out.spreading_newton_iterations = 0;
+    mesh::Vertices start = X;
+    for (Eigen::VectorXd shortest = shortest_edges(m, start);
+         out.spreading_stages == 0 || shortest.minCoeff() < kDefer; shortest = shortest_edges(m, start)) {
+      if (out.spreading_stages == kMaxStages)
+        fail(ErrorCode::kNotConverged, "the conformal sphere map is still crowded to " +
+                                           std::to_string(shortest.minCoeff()) + " after " +
+                                           std::to_string(kMaxStages) + " spreading stages");
+      std::vector<char> deferred(nv);
+      for (int v = 0; v < nv; ++v) deferred[v] = shortest[v] < kDefer;
+      OmtResult stage;
+      try {
+        start = spread_once(m, start, nu, deferred, opt.omt, ++out.spreading_stages, stage);
+      } catch (const Error& e) {
+        if (e.code() != ErrorCode::kNotConverged || repair_stages) throw;
+        break;  // go on to the second try
+      }
+      out.spreading_newton_iterations += stage.iterations;
+      // The folds the stage left (a start with fewer folds gives a final centroid map with
+      // fewer: camel 0.88 -> 0.33 mean |log area ratio| with the Tutte steps).
+      std::vector<char> none(nv, 0);
+      int left = 0;
+      conformal::untangle(m, start, true, none, left);
+      if (left > 0 && repair_stages) repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress);
+    }
+    if (!repair_stages && shortest_edges(m, start).minCoeff() < kDefer) continue;  // a stage failed
+    try {
+      transport_from(start);
+    } catch (const Error& e) {
+      if (e.code() != ErrorCode::kNotConverged || repair_stages) throw;
+      continue;
+    }
+    if (finish()) break;
+  }
   return out;
 }
 

@@ -32,6 +32,14 @@ struct AreaPreservingMap {
   OmtResult omt;
   int relaxed_vertices = 0;  // moved by the local fold repair after the centroids
   int folded_faces = 0;      // left folded after it
+  /// Sphere: stages of the spreading start that ran before the transport (0: the
+  /// transport started from the conformal map; see area_preserving_sphere), and their
+  /// Newton iterations.
+  int spreading_stages = 0;
+  int spreading_newton_iterations = 0;
+  /// Sphere: how many times the map covers the sphere (quality::sphere_degree). A map with
+  /// no folded face is a bijection exactly when this is 1.
+  double degree = 1;
 };
 
 /// Vertex masses of eq. 3.30: one third of the adjacent face areas.

@@ -24,6 +24,10 @@ namespace brenier::omt {
 /// untangled against reference triangles of their faces' target areas (m's face areas
 /// scaled to the map's). A cluster's repair is kept only if it leaves fewer folds and a mean
 /// |log area ratio| (quality::area_log_ratios) no larger than the map's before the repair.
+/// A repair must also leave the map covering the sphere once (quality::sphere_degree 1):
+/// a region untangled inside its fixed ring can otherwise wrap around the sphere with
+/// every face turned outward. The clusters' untangling stops once the free vertices of all
+/// tries add up to 2 #V + 1000 (a map the repair can mend needs under 1 #V).
 /// Returns the vertices moved; `folded` gets the folds left. `keep_going`, if given, is
 /// called before each cluster with (round, folds left); false cancels (Error(kCancelled)).
 int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded,

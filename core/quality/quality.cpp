@@ -102,7 +102,21 @@ MapQuality measure(const mesh::TriMesh& surface, const mesh::Vertices& image, Ta
   std::vector<double> qc(q.qc_ratio.data(), q.qc_ratio.data() + nf);
   qc.erase(std::remove_if(qc.begin(), qc.end(), [](double v) { return !std::isfinite(v); }), qc.end());
   q.quasi_conformal = stats(qc);
+  if (target == Target::kSphere) q.degree = sphere_degree(surface.F, image);
   return q;
+}
+
+double geodesic_triangle_area(const Eigen::Vector3d& p, const Eigen::Vector3d& q, const Eigen::Vector3d& r) {
+  // Van Oosterom and Strackee (1983): E = 2 atan2(a . (b x c), 1 + a.b + b.c + c.a).
+  const Vec3 a = p.normalized(), b = q.normalized(), c = r.normalized();
+  return 2 * std::atan2(a.dot(b.cross(c)), 1 + a.dot(b) + b.dot(c) + c.dot(a));
+}
+
+double sphere_degree(const mesh::Faces& F, const mesh::Vertices& X) {
+  double sum = 0;
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    sum += geodesic_triangle_area(X.row(F(f, 0)), X.row(F(f, 1)), X.row(F(f, 2)));
+  return sum / (4 * std::numbers::pi);
 }
 
 Eigen::VectorXcd beltrami(const mesh::Faces& F, const mesh::Vertices& a, const mesh::Vertices& b) {

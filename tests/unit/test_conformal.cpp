@@ -3,6 +3,8 @@
 // itself, long cylinder).
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
+
 #include <cmath>
 #include <complex>
 #include <numbers>
@@ -245,6 +247,39 @@ TEST(Quality, IdentityHasNoDistortionAndBeltramiIsZero) {
   mesh::Vertices mirror = m.V;
   mirror.col(0) *= -1.0;
   EXPECT_EQ(quality::measure(m, mirror, quality::Target::kPlane).flipped_faces, m.num_faces());
+}
+
+TEST(Quality, SphereDegreeCountsHowOftenAMapCoversTheSphere) {
+  // Identity: degree 1. Mirrored: every face turns inward, degree -1. The longitude doubled
+  // (z -> z^2 on the Riemann sphere, branched at the poles): every face still turns
+  // outward, yet the map covers the sphere twice -- no flipped face does not make a
+  // bijection, and the degree is what tells.
+  TriMesh m = mesh::make_icosphere(3);
+  // Vertex 0 (and its antipode: the icosphere is symmetric) onto the poles, the branch points.
+  const Eigen::Matrix3d turn =
+      Eigen::Quaterniond::FromTwoVectors(m.V.row(0).transpose(), Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  m.V = (m.V * turn.transpose()).eval();
+  auto q = quality::measure(m, m.V, quality::Target::kSphere);
+  EXPECT_EQ(q.flipped_faces, 0);
+  EXPECT_NEAR(q.degree, 1.0, 1e-12);
+  mesh::Vertices mirror = m.V;
+  mirror.col(0) *= -1.0;
+  q = quality::measure(m, mirror, quality::Target::kSphere);
+  EXPECT_EQ(q.flipped_faces, m.num_faces());
+  EXPECT_NEAR(q.degree, -1.0, 1e-12);
+  mesh::Vertices twice = m.V;
+  for (int v = 0; v < m.num_vertices(); ++v) {
+    const double r = std::hypot(m.V(v, 0), m.V(v, 1)), phi = 2 * std::atan2(m.V(v, 1), m.V(v, 0));
+    twice.row(v) << r * std::cos(phi), r * std::sin(phi), m.V(v, 2);
+  }
+  twice.rowwise().normalize();
+  q = quality::measure(m, twice, quality::Target::kSphere);
+  EXPECT_EQ(q.flipped_faces, 0);
+  EXPECT_NEAR(q.degree, 2.0, 1e-9);
+  // One geodesic triangle: the octant has area 4 pi / 8, with the sign of its turn.
+  const Eigen::Vector3d x = Eigen::Vector3d::UnitX(), y = Eigen::Vector3d::UnitY(), z = Eigen::Vector3d::UnitZ();
+  EXPECT_NEAR(quality::geodesic_triangle_area(x, y, z), std::numbers::pi / 2, 1e-14);
+  EXPECT_NEAR(quality::geodesic_triangle_area(x, z, y), -std::numbers::pi / 2, 1e-14);
 }
 
 TEST(DiskTargets, InscribedPolygonTurningAnglesAndGaussBonnet) {
