@@ -116,6 +116,8 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
       fixed[v] = 1;
       const double r = out.positions.row(v).norm();
       if (r > 0) out.positions.row(v) /= r;
+      // x / |x| can come out an ulp outside the circle; the map lies in the closed disk.
+      while (out.positions.row(v).norm() > 1) out.positions.row(v) *= 1 - std::numeric_limits<double>::epsilon();
     }
   out.relaxed_vertices = conformal::repair_planar_folds(m, out.positions, fixed, out.folded_faces);
   return out;
