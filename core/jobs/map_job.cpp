@@ -200,7 +200,7 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
                                        ")" + why + "; pass --allow-flips to write it anyway");
   }
 
-  if (std::abs(q.degree - 1) > 1e-6 && !o.allow_flips) {
+  if (!quality::covers_once(q.degree) && !o.allow_flips) {
     char buf[160];
     std::snprintf(buf, sizeof buf, ": the map covers the sphere %.0f times, so it is no bijection; pass --allow-flips to write it anyway",
                   q.degree);

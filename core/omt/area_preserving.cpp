@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "common/error.hpp"
+#include "conformal/mobius.hpp"
 #include "mesh/geometry.hpp"
 #include "mesh/topology.hpp"
 #include "omt/fold_repair.hpp"
@@ -211,11 +212,9 @@ mesh::Vertices spread_once(const mesh::TriMesh& m, const mesh::Vertices& X, cons
     mesh::Vertices Q = P;
     if (!conformal::tutte_fill(m, Q, region))
       fail(ErrorCode::kNotConverged, "spreading the crowded conformal sphere map: the Tutte solve failed");
-    for (int v = 0; v < nv; ++v) {  // inverse stereographic projection, still turned by R
-      const double u = Q(v, 0), w = Q(v, 1), q = u * u + w * w;
-      Y.row(v) << 2 * u / (q + 1), 2 * w / (q + 1), (q - 1) / (q + 1);
-    }
-    if (std::abs(quality::sphere_degree(m.F, Y) - 1) < 1e-6) break;
+    for (int v = 0; v < nv; ++v)  // back onto the sphere, still turned by R
+      Y.row(v) = conformal::inverse_stereographic({Q(v, 0), Q(v, 1)}).transpose();
+    if (quality::covers_once(quality::sphere_degree(m.F, Y))) break;
     if (grown == 6)
       fail(ErrorCode::kNotConverged, "spreading the crowded conformal sphere map (stage " + std::to_string(stage) +
                                          "): the placed region wraps around the sphere");
@@ -267,11 +266,11 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
     std::vector<char> fixed(nv, 0);
     out.relaxed_vertices = conformal::untangle(m, out.positions, true, fixed, out.folded_faces);
     out.degree = quality::sphere_degree(m.F, out.positions);
-    if (out.folded_faces > 0 && std::abs(out.degree - 1) < 1e-6) {
+    if (out.folded_faces > 0 && quality::covers_once(out.degree)) {
       out.relaxed_vertices += repair_sphere_folds_by_barrier(m, out.positions, out.folded_faces, opt.repair_progress);
       out.degree = quality::sphere_degree(m.F, out.positions);
     }
-    return out.folded_faces == 0 && std::abs(out.degree - 1) < 1e-6;
+    return out.folded_faces == 0 && quality::covers_once(out.degree);
   };
   bool spread = shortest_edges(m, X).minCoeff() < kCrowded;
   if (!spread) {
@@ -286,13 +285,11 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
     finish();
     return out;
   }
-  // Two tries at the spread start: after each stage the folds it left get local Tutte
-  // steps only (cheap; camel and cow come out bijective this way), or also the barrier
-  // repair (bull and armadillo need it: the next stage's kept centroids are then in order,
-  // where the first way leaves their regions wrapped). The first bijective map is kept,
-  // else the second try's, reported as it is.
-  for (int attempt = 0; attempt < 2; ++attempt) {
-    const bool repair_stages = attempt == 1;
+  // The spread start: stages until no two neighbours are closer than kDefer. After each
+  // stage the folds it left get local Tutte steps (a start with fewer folds gives a final
+  // centroid map with fewer: camel 0.88 -> 0.33 mean |log area ratio|), and with
+  // `repair_stages` also the barrier repair.
+  auto spread_start = [&](bool repair_stages) {
     out.spreading_stages = out.spreading_newton_iterations = 0;
     mesh::Vertices start = X;
     for (Eigen::VectorXd shortest = shortest_edges(m, start);
@@ -304,29 +301,28 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
       std::vector<char> deferred(nv);
       for (int v = 0; v < nv; ++v) deferred[v] = shortest[v] < kDefer;
       OmtResult stage;
-      try {
-        start = spread_once(m, start, nu, deferred, opt.omt, ++out.spreading_stages, stage);
-      } catch (const Error& e) {
-        if (e.code() != ErrorCode::kNotConverged || repair_stages) throw;
-        break;  // go on to the second try
-      }
+      start = spread_once(m, start, nu, deferred, opt.omt, ++out.spreading_stages, stage);
       out.spreading_newton_iterations += stage.iterations;
-      // The folds the stage left (a start with fewer folds gives a final centroid map with
-      // fewer: camel 0.88 -> 0.33 mean |log area ratio| with the Tutte steps).
       std::vector<char> none(nv, 0);
       int left = 0;
       conformal::untangle(m, start, true, none, left);
       if (left > 0 && repair_stages) repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress);
     }
-    if (!repair_stages && shortest_edges(m, start).minCoeff() < kDefer) continue;  // a stage failed
-    try {
-      transport_from(start);
-    } catch (const Error& e) {
-      if (e.code() != ErrorCode::kNotConverged || repair_stages) throw;
-      continue;
-    }
-    if (finish()) break;
+    return start;
+  };
+  // Two tries: Tutte steps only between stages (cheap; camel and cow come out bijective this
+  // way), then also the barrier repair (bull and armadillo need it: the next stage's kept
+  // centroids are then in order, where the first way leaves their regions wrapped). The
+  // first bijective map is kept, else the second try's, reported as it is; the first try's
+  // failure to converge only passes the turn to the second.
+  try {
+    transport_from(spread_start(false));
+    if (finish()) return out;
+  } catch (const Error& e) {
+    if (e.code() != ErrorCode::kNotConverged) throw;
   }
+  transport_from(spread_start(true));
+  finish();
   return out;
 }
 

@@ -222,7 +222,7 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
       // A region untangled inside a fixed ring can still wrap around the sphere with every
       // face turned outward (cactus and u did, covering it 4 times): only a repair that
       // leaves the map's degree at 1 is a repair.
-      if (left < folded && after <= allowed && std::abs(quality::sphere_degree(m.F, back) - 1) < 1e-6) {
+      if (left < folded && after <= allowed && quality::covers_once(quality::sphere_degree(m.F, back))) {
         X = std::move(back);
         folded = left;
         moved += nfree;

@@ -4,6 +4,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cmath>
 #include <complex>
 #include <vector>
 
@@ -50,6 +51,10 @@ double geodesic_triangle_area(const Eigen::Vector3d& p, const Eigen::Vector3d& q
 /// geodesic triangles over 4 pi. An integer up to round-off for a closed surface; 1 for a
 /// bijection, -1 for a mirrored one.
 double sphere_degree(const mesh::Faces& F, const mesh::Vertices& X);
+
+/// Whether a sphere_degree is 1 up to round-off: with no flipped face, the map is then a
+/// bijection.
+inline bool covers_once(double degree) { return std::abs(degree - 1) < 1e-6; }
 
 /// Per-face Beltrami coefficient mu = f_zbar / f_z of the piecewise-affine map from map a's
 /// triangles to map b's (both #V by 3, planar or each face in its own tangent frame).
