@@ -10,6 +10,7 @@
 
 #include "common/error.hpp"
 #include "conformal/conformal_map.hpp"
+#include "conformal/mobius.hpp"
 #include "mesh/geometry.hpp"
 #include "quality/quality.hpp"
 
@@ -40,13 +41,29 @@ BarrierFace barrier_face(int i, int j, int k, const Eigen::Vector3d& a, const Ei
   return f;
 }
 
-// The energy of fold_repair.hpp over the free vertices, for L-BFGS. A free vertex is
-// x = y / |y| for unknowns y in R^3, so every trial point lies on the sphere. The face's
-// signed area is read as det(a, b, c) / 2 (the chord triangle's area times its plane's
-// distance from the centre: positive exactly when it faces outward, the fold test), so
-// det J = det(a, b, c) / (2 A_target); |J|_F^2 is that of the chord triangle's edges
-// against the reference's.
-struct BarrierEnergy {
+// One face's term of the energy of fold_repair.hpp, a [theta (D^2 + 1) + (1 - theta) |J|_F^2]
+// / chi(D, eps), for the Jacobian J = M ref_inv of its edge matrix M (chord edges on the
+// sphere, chart edges in the plane) and its area ratio D; sets its derivatives in D and in M.
+template <int Rows>
+double barrier_term(const BarrierFace& f, const Eigen::Matrix<double, Rows, 2>& M, double D, double theta,
+                    double eps, double& dE_dD, Eigen::Matrix<double, Rows, 2>& dE_dM) {
+  const Eigen::Matrix<double, Rows, 2> J = M * f.ref_inv;
+  const double T = J.squaredNorm();
+  const double s = std::sqrt(eps * eps + D * D), chi = 0.5 * (D + s), dchi = 0.5 * (1 + D / s);
+  const double num = theta * (D * D + 1) + (1 - theta) * T;
+  dE_dD = f.weight * (theta * 2 * D / chi - num * dchi / (chi * chi));
+  dE_dM = f.weight * (1 - theta) * 2 / chi * J * f.ref_inv.transpose();
+  return f.weight * num / chi;
+}
+
+// The energy over the free vertices on the sphere, for L-BFGS. A free vertex is x = y / |y|
+// for unknowns y in R^3, so every trial point lies on the sphere. The face's signed area
+// is read as det(a, b, c) / 2 (the chord triangle's area times its plane's distance from
+// the centre: positive exactly when it faces outward, the fold test), so
+// D = det(a, b, c) / (2 A_target); |J|_F^2 is that of the chord triangle's edges against
+// the reference's.
+struct SphereBarrier {
+  static constexpr int kDim = 3;
   const std::vector<BarrierFace>& faces;
   mesh::Vertices& X;
   const std::vector<int>& var;   // row of X -> its first unknown, or -1 when fixed
@@ -57,6 +74,8 @@ struct BarrierEnergy {
   void load(const Eigen::VectorXd& y) {
     for (int r : rows) X.row(r) = y.segment<3>(var[r]).normalized().transpose();
   }
+  Eigen::Vector3d at(int r) const { return X.row(r).transpose(); }
+  bool facing(const BarrierFace& f) const { return at(f.v[0]).dot(at(f.v[1]).cross(at(f.v[2]))) > 0; }
   double operator()(const Eigen::VectorXd& y, Eigen::VectorXd& grad) {
     load(y);
     grad.setZero(y.size());
@@ -64,18 +83,14 @@ struct BarrierEnergy {
     double E = 0;
     min_det = std::numeric_limits<double>::infinity();
     for (const BarrierFace& f : faces) {
-      const Eigen::Vector3d a = X.row(f.v[0]), b = X.row(f.v[1]), c = X.row(f.v[2]);
-      Eigen::Matrix<double, 3, 2> M;
-      M.col(0) = b - a;
-      M.col(1) = c - a;
-      const Eigen::Matrix<double, 3, 2> J = M * f.ref_inv;
-      const double D = a.dot(b.cross(c)) / (2 * f.weight), T = J.squaredNorm();
+      const Eigen::Vector3d a = at(f.v[0]), b = at(f.v[1]), c = at(f.v[2]);
+      Eigen::Matrix<double, 3, 2> M, dM;
+      M << b - a, c - a;
+      const double D = a.dot(b.cross(c)) / (2 * f.weight);
       min_det = std::min(min_det, D);
-      const double s = std::sqrt(eps * eps + D * D), chi = 0.5 * (D + s), dchi = 0.5 * (1 + D / s);
-      const double num = theta * (D * D + 1) + (1 - theta) * T;
-      E += f.weight * num / chi;
-      const double dD = f.weight * ((theta * 2 * D) / chi - num * dchi / (chi * chi)) / (2 * f.weight);
-      const Eigen::Matrix<double, 3, 2> dM = f.weight * (1 - theta) * 2 / chi * J * f.ref_inv.transpose();
+      double dD;
+      E += barrier_term(f, M, D, theta, eps, dD, dM);
+      dD /= 2 * f.weight;
       auto add = [&](int row, const Eigen::Vector3d& d) {
         if (var[row] >= 0) gx.segment<3>(var[row]) += d;
       };
@@ -84,30 +99,76 @@ struct BarrierEnergy {
       add(f.v[2], dD * a.cross(b) + dM.col(1));
     }
     for (int r : rows) {  // through x = y / |y|: (I - x x^T) g / |y|
-      const Eigen::Vector3d x = X.row(r).transpose(), g = gx.segment<3>(var[r]);
+      const Eigen::Vector3d x = at(r), g = gx.segment<3>(var[r]);
       grad.segment<3>(var[r]) = (g - x * x.dot(g)) / y.segment<3>(var[r]).norm();
     }
     return E;
   }
 };
 
-// Moves the rows of X (points on the unit sphere) with free[row] != 0 to minimize the energy
-// over `faces`, keeping them on the sphere; theta weighs the area term. Returns the number
-// of `faces` whose chord triangles still do not face outward (0 on success).
+// The same energy in a planar chart (rows of X are chart points, z = 0): D = det M / (2 A),
+// positive exactly when the face turns counter-clockwise.
+struct PlaneBarrier {
+  static constexpr int kDim = 2;
+  const std::vector<BarrierFace>& faces;
+  mesh::Vertices& X;
+  const std::vector<int>& var;
+  const std::vector<int>& rows;
+  double theta, eps = 1;
+  double min_det = 0;
+
+  void load(const Eigen::VectorXd& y) {
+    for (int r : rows) X.row(r).head<2>() = y.segment<2>(var[r]).transpose();
+  }
+  Eigen::Vector2d at(int r) const { return X.row(r).head<2>().transpose(); }
+  static double cross(const Eigen::Vector2d& u, const Eigen::Vector2d& w) { return u.x() * w.y() - u.y() * w.x(); }
+  bool facing(const BarrierFace& f) const { return cross(at(f.v[1]) - at(f.v[0]), at(f.v[2]) - at(f.v[0])) > 0; }
+  double operator()(const Eigen::VectorXd& y, Eigen::VectorXd& grad) {
+    load(y);
+    grad.setZero(y.size());
+    double E = 0;
+    min_det = std::numeric_limits<double>::infinity();
+    for (const BarrierFace& f : faces) {
+      const Eigen::Vector2d a = at(f.v[0]), b = at(f.v[1]), c = at(f.v[2]);
+      Eigen::Matrix2d M, dM;
+      M << b - a, c - a;
+      const double D = cross(b - a, c - a) / (2 * f.weight);
+      min_det = std::min(min_det, D);
+      double dD;
+      E += barrier_term(f, M, D, theta, eps, dD, dM);
+      dD /= 2 * f.weight;
+      // d cross(b - a, c - a) / db = perp(c - a), / dc = -perp(b - a), perp(u) = (u.y, -u.x)
+      const Eigen::Vector2d db(c.y() - a.y(), a.x() - c.x()), dc(a.y() - b.y(), b.x() - a.x());
+      auto add = [&](int row, const Eigen::Vector2d& d) {
+        if (var[row] >= 0) grad.segment<2>(var[row]) += d;
+      };
+      add(f.v[0], -dD * (db + dc) - dM.col(0) - dM.col(1));
+      add(f.v[1], dD * db + dM.col(0));
+      add(f.v[2], dD * dc + dM.col(1));
+    }
+    return E;
+  }
+};
+
+// Moves the rows of X with free[row] != 0 to minimize the energy over `faces` (on the unit
+// sphere with SphereBarrier, in a plane with PlaneBarrier); theta weighs the area term.
+// Returns the number of `faces` still folded (0 on success).
+template <class Energy>
 int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X, const std::vector<char>& free,
                         double theta = 0.9) {
+  constexpr int d = Energy::kDim;
   std::vector<int> var(X.rows(), -1), rows;
   int n = 0;
   for (Eigen::Index r = 0; r < X.rows(); ++r)
-    if (free[r]) var[r] = n, n += 3, rows.push_back(static_cast<int>(r));
-  BarrierEnergy energy{faces, X, var, rows, theta};
+    if (free[r]) var[r] = n, n += d, rows.push_back(static_cast<int>(r));
+  Energy energy{faces, X, var, rows, theta};
   Eigen::VectorXd y(n), grad(n);
-  for (int r : rows) y.segment<3>(var[r]) = X.row(r).transpose();
+  for (int r : rows) y.segment<d>(var[r]) = X.row(r).head<d>().transpose();
   energy.eps = 1;
   energy(y, grad);
   // eps from the smallest det J: chi(min det, eps) = mu, i.e. eps = 2 sqrt(mu (mu - min det)),
   // mu shrinking with the energy's relative decrease (the paper's schedule).
-  auto eps_for = [](double mu, double d) { return d < mu ? 2 * std::sqrt(mu * (mu - d)) : 1e-12; };
+  auto eps_for = [](double mu, double det) { return det < mu ? 2 * std::sqrt(mu * (mu - det)) : 1e-12; };
   energy.eps = eps_for(0.1, energy.min_det);
   LBFGSpp::LBFGSParam<double> param;
   param.epsilon = 1e-9;
@@ -115,12 +176,16 @@ int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X
   param.max_linesearch = 40;
   for (int outer = 0; outer < 60; ++outer) {
     const double E_prev = energy(y, grad);
+    const Eigen::VectorXd y_prev = y;
     LBFGSpp::LBFGSSolver<double> solver(param);
     double fx = E_prev;
     try {
       solver.minimize(energy, y, fx);
     } catch (const std::exception&) {
-      // a line search that cannot lower the energy further leaves y at its best point
+      // A line search that cannot lower the energy further throws, with y left at its last
+      // trial point, which may be worse than where it started (a face turned over with eps
+      // tiny makes the energy infinite, or NaN): then y goes back.
+      if (!(energy(y, grad) <= E_prev)) y = y_prev;
     }
     const double E = energy(y, grad);
     if (energy.min_det > 0 && outer > 0 && energy.eps < 1e-9) break;
@@ -131,14 +196,14 @@ int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X
   }
   energy(y, grad);
   int folds = 0;
-  for (const BarrierFace& f : faces) folds += !(X.row(f.v[0]).dot(X.row(f.v[1]).cross(X.row(f.v[2]))) > 0);
+  for (const BarrierFace& f : faces) folds += !energy.facing(f);
   return folds;
 }
 
 }  // namespace
 
 int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded,
-                                   const std::function<bool(int round, int folds)>& keep_going) {
+                                   const std::function<bool(int round, int folds)>& keep_going, BarrierSpace space) {
   const int nv = m.num_vertices(), nf = m.num_faces();
   auto folded_face = [&](const mesh::Vertices& Z, int f) { return conformal::face_folded(m, Z, f, true); };
   auto count_folds = [&](const mesh::Vertices& Z) {
@@ -168,6 +233,53 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
     return total / area.sum();
   };
   double scale = target_scale();
+  // The reference triangle of face f (m's shape) with target area a in the energy's measure.
+  auto reference = [&](int f, double a) {
+    return barrier_face(m.F(f, 0), m.F(f, 1), m.F(f, 2), m.V.row(m.F(f, 0)), m.V.row(m.F(f, 1)), m.V.row(m.F(f, 2)), a);
+  };
+  // The chart of a region: the stereographic projection from `pole`, mirrored so that it keeps orientation (a face turned outward on the
+  // sphere turns counter-clockwise in the plane). Fills the rows of P of the corners of
+  // `faces`; returns the rotation that takes the pole to the north pole.
+  auto chart = [&](const std::vector<int>& faces, const mesh::Vertices& Z, const Eigen::Vector3d& pole,
+                   mesh::Vertices& P) {
+    const Eigen::Matrix3d R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    for (int f : faces)
+      for (int k = 0; k < 3; ++k) {
+        const Eigen::Vector3d y = R * Z.row(m.F(f, k)).transpose();
+        P.row(m.F(f, k)) << y.x() / (1 - y.z()), -y.y() / (1 - y.z()), 0;
+      }
+    return R;
+  };
+  auto back_from_chart = [&](const mesh::Vertices& P, const Eigen::Matrix3d& R, const std::vector<char>& free,
+                             mesh::Vertices& Z) {
+    for (int v = 0; v < nv; ++v)
+      if (free[v]) Z.row(v) = (R.transpose() * conformal::inverse_stereographic({P(v, 0), -P(v, 1)})).transpose();
+  };
+  // Moves the free rows of Z over `faces` by the barrier untangling, on the sphere or in the
+  // region's chart (whose areas are the sphere's times (1 + |z|^2)^2 / 4 at the face).
+  auto untangle = [&](const std::vector<int>& faces, mesh::Vertices& Z, const std::vector<char>& free) {
+    std::vector<BarrierFace> ref;
+    ref.reserve(faces.size());
+    if (space == BarrierSpace::kSphere) {
+      for (int f : faces) ref.push_back(reference(f, area[f] * scale));
+      untangle_by_barrier<SphereBarrier>(ref, Z, free);
+      return;
+    }
+    // The pole: the antipode of the free vertices' centre. (The vertex farthest from the
+    // seed in the mesh was tried too, for regions whose image spans a hemisphere: dino
+    // came out with 5 folds instead of 2.)
+    Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+    for (int v = 0; v < nv; ++v)
+      if (free[v]) centre += Z.row(v).transpose();
+    mesh::Vertices P = mesh::Vertices::Zero(nv, 3);
+    const Eigen::Matrix3d R = chart(faces, Z, -centre.normalized(), P);
+    for (int f : faces) {
+      const double r2 = ((P.row(m.F(f, 0)) + P.row(m.F(f, 1)) + P.row(m.F(f, 2))) / 3).squaredNorm();
+      ref.push_back(reference(f, area[f] * scale * (1 + r2) * (1 + r2) / 4));
+    }
+    untangle_by_barrier<PlaneBarrier>(ref, P, free);
+    back_from_chart(P, R, free, Z);
+  };
   int moved = 0;
   long work = 0;
   bool out_of_budget = false;
@@ -179,30 +291,23 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
     if (seed < 0) break;
     if (keep_going && !keep_going(round, folded)) fail(ErrorCode::kCancelled, "fold repair cancelled");
     tried[seed] = 1;
+    // Every vertex's distance in edges from the seed face; the regions are the vertices
+    // within 1, 2, 4, 8 or 16 rings.
+    std::vector<int> dist(nv, -1), queue;
+    for (int k = 0; k < 3; ++k) dist[m.F(seed, k)] = 0, queue.push_back(m.F(seed, k));
+    for (size_t q = 0; q < queue.size(); ++q)
+      for (int w : ring[queue[q]])
+        if (dist[w] < 0) dist[w] = dist[queue[q]] + 1, queue.push_back(w);
     int last_free = -1;
     for (int rings : {1, 2, 4, 8, 16}) {
-      // The vertices within `rings` rings of the seed face, and the faces around them.
-      std::vector<int> dist(nv, -1), layer;
-      for (int k = 0; k < 3; ++k) dist[m.F(seed, k)] = 0, layer.push_back(m.F(seed, k));
-      for (int r = 0; r < rings; ++r) {
-        std::vector<int> next;
-        for (int v : layer)
-          for (int w : ring[v])
-            if (dist[w] < 0) dist[w] = r + 1, next.push_back(w);
-        layer = std::move(next);
-      }
       std::vector<char> is_free(nv, 0), seen(nf, 0);
       int nfree = 0;
-      std::vector<BarrierFace> faces;
+      std::vector<int> region_faces;
       for (int v = 0; v < nv; ++v)
-        if (dist[v] >= 0) {
+        if (dist[v] >= 0 && dist[v] <= rings) {
           is_free[v] = 1, ++nfree;
           for (int f : star[v])
-            if (!seen[f]) {
-              seen[f] = 1;
-              faces.push_back(barrier_face(m.F(f, 0), m.F(f, 1), m.F(f, 2), m.V.row(m.F(f, 0)), m.V.row(m.F(f, 1)),
-                                           m.V.row(m.F(f, 2)), area[f] * scale));
-            }
+            if (!seen[f]) seen[f] = 1, region_faces.push_back(f);
         }
       if (nfree == last_free) break;  // the whole component is free already
       last_free = nfree;
@@ -215,7 +320,7 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
       }
       work += nfree;
       mesh::Vertices back = X;
-      untangle_by_barrier(faces, back, is_free);
+      untangle(region_faces, back, is_free);
       if (!back.allFinite()) continue;
       const int left = count_folds(back);
       const double after = distortion(back);

@@ -19,6 +19,14 @@
 
 namespace brenier::omt {
 
+/// Where a cluster is untangled: on the sphere itself (x = y / |y|, orientation by the triple
+/// product), or in a planar chart, the stereographic projection from the antipode of the
+/// cluster's centre (mirrored to keep orientation), where det J is the plane's and a region
+/// held by its fixed ring cannot wrap around the sphere while its faces all turn outward.
+/// The chart's target areas are the sphere's times the projection's area factor
+/// (1 + |z|^2)^2 / 4 at each face.
+enum class BarrierSpace { kSphere, kChart };
+
 /// Repairs the folded faces of a map X of closed genus-0 `m` onto the unit sphere, one
 /// cluster at a time: the vertices within 1, 2, 4, 8 or 16 rings of a folded face are
 /// untangled against reference triangles of their faces' target areas (m's face areas
@@ -30,7 +38,9 @@ namespace brenier::omt {
 /// tries add up to 2 #V + 1000 (a map the repair can mend needs under 1 #V).
 /// Returns the vertices moved; `folded` gets the folds left. `keep_going`, if given, is
 /// called before each cluster with (round, folds left); false cancels (Error(kCancelled)).
+/// `space` says where the clusters are untangled (BarrierSpace).
 int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded,
-                                   const std::function<bool(int round, int folds)>& keep_going = {});
+                                   const std::function<bool(int round, int folds)>& keep_going = {},
+                                   BarrierSpace space = BarrierSpace::kSphere);
 
 }  // namespace brenier::omt

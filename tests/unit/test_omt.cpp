@@ -582,48 +582,54 @@ TEST(SphereDomain, PolarFamilyAndRegionWeightsOnTheSphere) {
   EXPECT_LT(in_region / (4 * std::numbers::pi), 0.85);
 }
 
-// The barrier fold repair (fold_repair.hpp): a vertex of the identity map of an icosphere
-// pushed past its neighbours folds the faces around it; the repair unfolds every face, moves
-// only vertices near the fold, and leaves the area distortion below the folded map's. A map
-// without folds is left exactly as it is.
+// The barrier fold repair (fold_repair.hpp), on the sphere and in charts: a vertex of the
+// identity map of an icosphere pushed past its neighbours folds the faces around it; the
+// repair unfolds every face, keeps the map covering the sphere once, moves only vertices
+// near the fold, and leaves the area distortion below the folded map's. A map without
+// folds is left exactly as it is.
 TEST(FoldRepair, UnfoldsAPushedVertexOnTheSphereLocallyAndKeepsAreas) {
   const mesh::TriMesh m = mesh::make_icosphere(3);
   auto distortion = [&](const mesh::Vertices& X) {
     return quality::measure(m, X, quality::Target::kSphere).area_distortion_log_abs.mean;
   };
-  mesh::Vertices X = m.V;
-  int folded = -1;
-  EXPECT_EQ(omt::repair_sphere_folds_by_barrier(m, X, folded), 0);
-  EXPECT_EQ(folded, 0);
-  EXPECT_EQ(X, m.V);
+  for (omt::BarrierSpace space : {omt::BarrierSpace::kSphere, omt::BarrierSpace::kChart}) {
+    SCOPED_TRACE(space == omt::BarrierSpace::kSphere ? "on the sphere" : "in charts");
+    mesh::Vertices X = m.V;
+    int folded = -1;
+    EXPECT_EQ(omt::repair_sphere_folds_by_barrier(m, X, folded, {}, space), 0);
+    EXPECT_EQ(folded, 0);
+    EXPECT_EQ(X, m.V);
 
-  const int v = 100;
-  int w = -1;  // a neighbour of v
-  for (int f = 0; f < m.num_faces() && w < 0; ++f)
-    for (int k = 0; k < 3; ++k)
-      if (m.F(f, k) == v) w = m.F(f, (k + 1) % 3);
-  X.row(v) = (m.V.row(v) + 2.5 * (m.V.row(w) - m.V.row(v))).normalized();
-  const int folds_before = quality::measure(m, X, quality::Target::kSphere).flipped_faces;
-  ASSERT_GE(folds_before, 2);
-  const double before = distortion(X);
-  const int moved = omt::repair_sphere_folds_by_barrier(m, X, folded);
-  EXPECT_GT(moved, 0);
-  EXPECT_EQ(folded, 0);
-  EXPECT_EQ(quality::measure(m, X, quality::Target::kSphere).flipped_faces, 0);
-  EXPECT_LT(distortion(X), before);
-  // Vertices far from the fold (more than 45 degrees away) did not move.
-  for (int u = 0; u < m.num_vertices(); ++u)
-    if (m.V.row(u).dot(m.V.row(v)) < std::cos(std::numbers::pi / 4)) {
-      EXPECT_EQ(X.row(u), m.V.row(u)) << u;
+    const int v = 100;
+    int w = -1;  // a neighbour of v
+    for (int f = 0; f < m.num_faces() && w < 0; ++f)
+      for (int k = 0; k < 3; ++k)
+        if (m.F(f, k) == v) w = m.F(f, (k + 1) % 3);
+    X.row(v) = (m.V.row(v) + 2.5 * (m.V.row(w) - m.V.row(v))).normalized();
+    const int folds_before = quality::measure(m, X, quality::Target::kSphere).flipped_faces;
+    ASSERT_GE(folds_before, 2);
+    const double before = distortion(X);
+    const int moved = omt::repair_sphere_folds_by_barrier(m, X, folded, {}, space);
+    EXPECT_GT(moved, 0);
+    EXPECT_EQ(folded, 0);
+    const quality::MapQuality q = quality::measure(m, X, quality::Target::kSphere);
+    EXPECT_EQ(q.flipped_faces, 0);
+    EXPECT_NEAR(q.degree, 1, 1e-9);
+    EXPECT_LT(distortion(X), before);
+    // Vertices far from the fold (more than 45 degrees away) did not move.
+    for (int u = 0; u < m.num_vertices(); ++u)
+      if (m.V.row(u).dot(m.V.row(v)) < std::cos(std::numbers::pi / 4)) {
+        EXPECT_EQ(X.row(u), m.V.row(u)) << u;
+      }
+    for (int u = 0; u < m.num_vertices(); ++u) EXPECT_NEAR(X.row(u).norm(), 1.0, 1e-12);
+    // A cancelled repair stops before its first cluster.
+    X.row(v) = (m.V.row(v) + 2.5 * (m.V.row(w) - m.V.row(v))).normalized();
+    try {
+      omt::repair_sphere_folds_by_barrier(m, X, folded, [](int, int) { return false; }, space);
+      ADD_FAILURE() << "not cancelled";
+    } catch (const Error& e) {
+      EXPECT_EQ(e.code(), ErrorCode::kCancelled);
     }
-  for (int u = 0; u < m.num_vertices(); ++u) EXPECT_NEAR(X.row(u).norm(), 1.0, 1e-12);
-  // A cancelled repair stops before its first cluster.
-  X.row(v) = (m.V.row(v) + 2.5 * (m.V.row(w) - m.V.row(v))).normalized();
-  try {
-    omt::repair_sphere_folds_by_barrier(m, X, folded, [](int, int) { return false; });
-    ADD_FAILURE() << "not cancelled";
-  } catch (const Error& e) {
-    EXPECT_EQ(e.code(), ErrorCode::kCancelled);
   }
 }
 
