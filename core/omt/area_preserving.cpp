@@ -273,8 +273,7 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
       out.relaxed_vertices += repair_sphere_folds_by_barrier(m, out.positions, out.folded_faces, opt.repair_progress);
       out.degree = quality::sphere_degree(m.F, out.positions);
     }
-    // Then in charts, where a region cannot wrap (diplodocus and man: 4 and 20 folds left on
-    // the sphere). A pass tries each folded face once; a fold that resisted while its
+    // Then in charts, where a region cannot wrap (diplodocus: 4 folds left on the sphere). A pass tries each folded face once; a fold that resisted while its
     // neighbours were folded too can give way once they are not, so passes repeat while
     // they mend something.
     for (int pass = 0; pass < 4 && out.folded_faces > 0 && quality::covers_once(out.degree); ++pass) {
@@ -307,7 +306,7 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   // The spread start: stages until no two neighbours are closer than kDefer. After each
   // stage the folds it left get local Tutte steps (a start with fewer folds gives a final
   // centroid map with fewer: camel 0.88 -> 0.33 mean |log area ratio|), and with
-  // `repair_stages` also the barrier repair.
+  // `repair_stages` also the barrier repairs.
   auto spread_start = [&](bool repair_stages) {
     out.spreading_stages = out.spreading_newton_iterations = 0;
     mesh::Vertices start = X;
@@ -326,6 +325,8 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
       int left = 0;
       conformal::untangle(m, start, true, none, left);
       if (left > 0 && repair_stages) repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress);
+      if (left > 0 && repair_stages)
+        repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress, BarrierSpace::kChart);
     }
     transport_from(start);
   };
@@ -337,8 +338,9 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   //    and its centroids order a start whose own centroid map folds (cactus: 6 folds from
   //    the conformal map, none from one stage).
   if (attempt([&] { spread_start(false); })) return out;
-  // 3. Also the barrier repair between stages (bull and armadillo need it: the next stage's
-  //    kept centroids are then in order, where the second try leaves their regions wrapped).
+  // 3. Also the barrier repairs between stages, on the sphere and then in charts (bull and
+  //    armadillo need the first: the next stage's kept centroids are then in order, where
+  //    the second try leaves their regions wrapped; dino the second: 2 folds left without).
   if (attempt([&] { spread_start(true); })) return out;
   if (!best) std::rethrow_exception(failure);
   return std::move(*best);

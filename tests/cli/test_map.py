@@ -126,9 +126,16 @@ if rc == 0:
     d = json.loads(so)
     check(d["omt"]["start"] == "spread", f"cactus start {d['omt']}")
     check(d["quality"]["flipped_faces"] == 0 and abs(d["quality"]["degree"] - 1) < 1e-6, f"cactus quality {d['quality']}")
-# dino keeps folds in faces its map stretches across the sphere: exit 3, one line saying so.
-rc, so, se = run("map", os.path.join(data, "dino.off"), "--domain", "sphere", "--method", "area-preserving")
-check(rc == 3 and "folds" in se and len(se.strip().splitlines()) == 1, f"dino sphere area-preserving: exit {rc}, stderr {se!r}")
+# A map that keeps folds is refused with exit 3 and one line naming them: u's 86 vertices
+# with every seventh weighted 1e5 (region-of-interest weights far beyond any use) leave
+# folds no repair removes.
+wfile = os.path.join(work, "weights-u.txt")
+with open(wfile, "w") as fh:
+    fh.write("\n".join("1e5" if i % 7 == 0 else "1" for i in range(86)) + "\n")
+rc, so, se = run("map", os.path.join(data, "u.off"), "--domain", "sphere", "--method", "area-preserving",
+                 "--weights", wfile)
+check(rc == 3 and "folds" in se and "--allow-flips" in se and len(se.strip().splitlines()) == 1,
+      f"u with extreme weights: exit {rc}, stderr {se!r}")
 wfile = os.path.join(work, "weights-short.txt")
 with open(wfile, "w") as fh:
     fh.write("1 2 3\n")

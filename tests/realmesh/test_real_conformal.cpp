@@ -132,10 +132,10 @@ TEST(RealAreaPreserving, SphereMeshesGetAreaPreservingMapsOrSayWhyNot) {
   // 1e-10 to 1e-15 apart (bull, camel, cow, dino, diplodocus, man), the transport starts
   // from a spread map instead (area_preserving_sphere). A map that cannot be made must fail
   // with kNotConverged, never come back wrong; every returned map has converged masses and
-  // reports its folds and covering degree truthfully. 57 of the 59 sphere meshes map
-  // bijectively (2026-11-24, session 9: camel, cow, bull, armadillo and cactus through the
-  // spread start, diplodocus through the chart repair too; dino and man keep 2 and 3 folds
-  // in faces torn across the sphere), and that number may not drop.
+  // reports its folds and covering degree truthfully. 58 of the 59 sphere meshes map
+  // bijectively (2026-11-24, session 9: camel, cow, bull, armadillo, cactus, diplodocus and
+  // dino through the spread start, the last two with the chart repair; man keeps 3 folds in
+  // faces its map stretches across the sphere), and that number may not drop.
   auto cases = meshes_of_class(mesh::MeshClass::kSphere);
   ASSERT_GE(cases.size(), 50u);
   int unfolded = 0, limit = 0;
@@ -168,7 +168,7 @@ TEST(RealAreaPreserving, SphereMeshesGetAreaPreservingMapsOrSayWhyNot) {
       failures += " " + c.name + "(" + std::to_string(q.flipped_faces) + " folds, degree " +
                   std::to_string(std::lround(q.degree)) + ")";
   }
-  EXPECT_GE(unfolded, 57) << "failed:" << failures << " (" << limit << " at the precision limit)";
+  EXPECT_GE(unfolded, 58) << "failed:" << failures << " (" << limit << " at the precision limit)";
 }
 
 TEST(RealAreaPreserving, SphereAreaDistortionFallsFarBelowTheConformalMaps) {
