@@ -237,9 +237,10 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
   auto reference = [&](int f, double a) {
     return barrier_face(m.F(f, 0), m.F(f, 1), m.F(f, 2), m.V.row(m.F(f, 0)), m.V.row(m.F(f, 1)), m.V.row(m.F(f, 2)), a);
   };
-  // The chart of a region: the stereographic projection from `pole`, mirrored so that it keeps orientation (a face turned outward on the
-  // sphere turns counter-clockwise in the plane). Fills the rows of P of the corners of
-  // `faces`; returns the rotation that takes the pole to the north pole.
+  // The chart of a region: the stereographic projection from `pole`, mirrored so that it
+  // keeps orientation (a face turned outward on the sphere turns counter-clockwise in the
+  // plane). Fills the rows of P of the corners of `faces`; returns the rotation that takes
+  // the pole to the north pole.
   auto chart = [&](const std::vector<int>& faces, const mesh::Vertices& Z, const Eigen::Vector3d& pole,
                    mesh::Vertices& P) {
     const Eigen::Matrix3d R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
@@ -291,15 +292,17 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
     if (seed < 0) break;
     if (keep_going && !keep_going(round, folded)) fail(ErrorCode::kCancelled, "fold repair cancelled");
     tried[seed] = 1;
-    // Every vertex's distance in edges from the seed face; the regions are the vertices
+    // The distance in edges from the seed face, up to 16; the regions are the vertices
     // within 1, 2, 4, 8 or 16 rings.
+    constexpr int kMaxRings = 16;
     std::vector<int> dist(nv, -1), queue;
     for (int k = 0; k < 3; ++k) dist[m.F(seed, k)] = 0, queue.push_back(m.F(seed, k));
     for (size_t q = 0; q < queue.size(); ++q)
-      for (int w : ring[queue[q]])
-        if (dist[w] < 0) dist[w] = dist[queue[q]] + 1, queue.push_back(w);
+      if (dist[queue[q]] < kMaxRings)
+        for (int w : ring[queue[q]])
+          if (dist[w] < 0) dist[w] = dist[queue[q]] + 1, queue.push_back(w);
     int last_free = -1;
-    for (int rings : {1, 2, 4, 8, 16}) {
+    for (int rings : {1, 2, 4, 8, kMaxRings}) {
       std::vector<char> is_free(nv, 0), seen(nf, 0);
       int nfree = 0;
       std::vector<int> region_faces;
