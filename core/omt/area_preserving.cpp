@@ -5,8 +5,8 @@
 #include <cstdio>
 #include <exception>
 #include <functional>
-#include <optional>
 #include <limits>
+#include <optional>
 #include <string>
 #include <utility>
 

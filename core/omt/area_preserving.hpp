@@ -80,8 +80,11 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& mesh, const AreaPres
 /// map already lives in that plane. With t > 0, vertex i goes to the normalized
 /// (1 - t) c_i + t p_i, c_i its cell's centroid and p_i its conformal image. Folds left by
 /// neighbouring centroids (coarse or CAD-like meshes) are untangled on the sphere, first by
-/// local steps, then by the barrier repair of fold_repair.hpp, kept only where it leaves the
-/// area distortion no larger. Errors as area_preserving_disk.
+/// local steps, then by the barrier repair of fold_repair.hpp on the sphere and in planar
+/// charts, kept only where it leaves the area distortion no larger. Where the conformal map
+/// is crowded below double precision, or its own map keeps folds, the transport starts
+/// from a spread map instead (two tries; see the .cpp); the first bijective map is returned,
+/// else the nearest one, with its folds and degree reported. Errors as area_preserving_disk.
 AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& mesh, const AreaPreservingOptions& options = {});
 
 }  // namespace brenier::omt
