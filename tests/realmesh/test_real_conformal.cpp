@@ -134,7 +134,7 @@ TEST(RealAreaPreserving, SphereMeshesGetAreaPreservingMapsOrSayWhyNot) {
   // with kNotConverged, never come back wrong; every returned map has converged masses and
   // reports its folds and covering degree truthfully. 58 of the 59 sphere meshes map
   // bijectively (2026-11-24, session 9: camel, cow, bull, armadillo, cactus, diplodocus and
-  // dino through the spread start, the last two with the chart repair; man keeps 3 folds in
+  // dino through the spread start, the last two with the chart repair; man keeps 4 folds in
   // faces its map stretches across the sphere), and that number may not drop.
   auto cases = meshes_of_class(mesh::MeshClass::kSphere);
   ASSERT_GE(cases.size(), 50u);
