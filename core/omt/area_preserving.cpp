@@ -325,9 +325,10 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
       std::vector<char> none(nv, 0);
       int left = 0;
       conformal::untangle(m, start, true, none, left);
-      if (left > 0 && repair_stages) repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress);
-      if (left > 0 && repair_stages)
-        repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress, BarrierSpace::kChart);
+      if (left > 0 && repair_stages) {
+        repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress);
+        if (left > 0) repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress, BarrierSpace::kChart);
+      }
     }
     transport_from(start);
   };

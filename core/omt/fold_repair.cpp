@@ -237,25 +237,6 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
   auto reference = [&](int f, double a) {
     return barrier_face(m.F(f, 0), m.F(f, 1), m.F(f, 2), m.V.row(m.F(f, 0)), m.V.row(m.F(f, 1)), m.V.row(m.F(f, 2)), a);
   };
-  // The chart of a region: the stereographic projection from `pole`, mirrored so that it
-  // keeps orientation (a face turned outward on the sphere turns counter-clockwise in the
-  // plane). Fills the rows of P of the corners of `faces`; returns the rotation that takes
-  // the pole to the north pole.
-  auto chart = [&](const std::vector<int>& faces, const mesh::Vertices& Z, const Eigen::Vector3d& pole,
-                   mesh::Vertices& P) {
-    const Eigen::Matrix3d R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-    for (int f : faces)
-      for (int k = 0; k < 3; ++k) {
-        const Eigen::Vector3d y = R * Z.row(m.F(f, k)).transpose();
-        P.row(m.F(f, k)) << y.x() / (1 - y.z()), -y.y() / (1 - y.z()), 0;
-      }
-    return R;
-  };
-  auto back_from_chart = [&](const mesh::Vertices& P, const Eigen::Matrix3d& R, const std::vector<char>& free,
-                             mesh::Vertices& Z) {
-    for (int v = 0; v < nv; ++v)
-      if (free[v]) Z.row(v) = (R.transpose() * conformal::inverse_stereographic({P(v, 0), -P(v, 1)})).transpose();
-  };
   // Moves the free rows of Z over `faces` by the barrier untangling, on the sphere or in the
   // region's chart (whose areas are the sphere's times (1 + |z|^2)^2 / 4 at the face).
   auto untangle = [&](const std::vector<int>& faces, mesh::Vertices& Z, const std::vector<char>& free) {
@@ -266,20 +247,31 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
       untangle_by_barrier<SphereBarrier>(ref, Z, free);
       return;
     }
-    // The pole: the antipode of the free vertices' centre. (The vertex farthest from the
-    // seed in the mesh was tried too, for regions whose image spans a hemisphere: dino
-    // came out with 5 folds instead of 2.)
+    // The chart: the stereographic projection (conformal::stereographic) from the antipode
+    // of the free vertices' centre, mirrored (conjugated) so that it keeps orientation: a
+    // face turned outward on the sphere turns counter-clockwise in the plane. (The vertex
+    // farthest from the seed in the mesh was tried as the pole too, for regions whose image
+    // spans a hemisphere: dino came out with 5 folds instead of 2.)
     Eigen::Vector3d centre = Eigen::Vector3d::Zero();
     for (int v = 0; v < nv; ++v)
       if (free[v]) centre += Z.row(v).transpose();
+    const Eigen::Matrix3d R =
+        Eigen::Quaterniond::FromTwoVectors(-centre.normalized(), Eigen::Vector3d::UnitZ()).toRotationMatrix();
     mesh::Vertices P = mesh::Vertices::Zero(nv, 3);
-    const Eigen::Matrix3d R = chart(faces, Z, -centre.normalized(), P);
+    for (int f : faces)
+      for (int k = 0; k < 3; ++k) {
+        const conformal::Complex z = std::conj(conformal::stereographic(R * Z.row(m.F(f, k)).transpose()));
+        P.row(m.F(f, k)) << z.real(), z.imag(), 0;
+      }
     for (int f : faces) {
       const double r2 = ((P.row(m.F(f, 0)) + P.row(m.F(f, 1)) + P.row(m.F(f, 2))) / 3).squaredNorm();
       ref.push_back(reference(f, area[f] * scale * (1 + r2) * (1 + r2) / 4));
     }
     untangle_by_barrier<PlaneBarrier>(ref, P, free);
-    back_from_chart(P, R, free, Z);
+    for (int v = 0; v < nv; ++v)
+      if (free[v])
+        Z.row(v) = (R.transpose() * conformal::inverse_stereographic(std::conj(conformal::Complex(P(v, 0), P(v, 1)))))
+                       .transpose();
   };
   int moved = 0;
   long work = 0;
