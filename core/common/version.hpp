@@ -9,6 +9,8 @@ namespace brenier {
 /// 2: the OT solver refactors its preconditioner by the iterations spent on it.
 /// 5: sphere maps: the local Tutte steps and the barrier repair refuse moves that change the
 ///    covering degree; crowded conformal maps transport from a spread start.
-inline constexpr const char* kNumericsVersion = "5";
+/// 6: Wasserstein transports also stop on the dual gap (ShapeOptions::cost_tolerance); the
+///    sphere's local Tutte steps never lengthen a vertex's longest edge.
+inline constexpr const char* kNumericsVersion = "6";
 
 }  // namespace brenier

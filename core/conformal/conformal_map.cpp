@@ -158,7 +158,7 @@ bool face_folded(const mesh::TriMesh& m, const mesh::Vertices& X, int f, bool sp
 }
 
 int untangle(const mesh::TriMesh& m, mesh::Vertices& X, bool sphere, const std::vector<char>& fixed,
-             int& folded, int max_rounds) {
+             int& folded, int max_rounds, bool keep_longest_edges) {
   const int nv = m.num_vertices();
   std::vector<std::vector<int>> ring(nv), star(nv);
   for (int f = 0; f < m.num_faces(); ++f)
@@ -222,9 +222,19 @@ int untangle(const mesh::TriMesh& m, mesh::Vertices& X, bool sphere, const std::
       const double area_before = sphere ? star_area(v) : 0;
       Eigen::RowVector3d best = old;
       int best_n = before;
+      // With keep_longest_edges a move may not lengthen v's longest edge: a mirror across a
+      // face torn open by a spreading stage would throw v across the sphere and tear its
+      // other faces (man: vertices moved 1.9 apart, faces 1e3 times their targets).
+      auto longest = [&] {
+        double l = 0;
+        for (int w : ring[v]) l = std::max(l, (X.row(w) - X.row(v)).norm());
+        return l;
+      };
+      const double longest_before = keep_longest_edges ? longest() : 0;
       for (const Eigen::RowVector3d& cand : {mirror(v, f), average(v)}) {
         if (!cand.allFinite()) continue;
         X.row(v) = cand;
+        if (keep_longest_edges && longest() > longest_before) continue;
         if (sphere && std::abs(star_area(v) - area_before) > std::numbers::pi) continue;
         int n = folded_around(v);
         // Strict improvements always; sideways moves on odd rounds, to get out of a knot.

@@ -82,8 +82,10 @@ void inscribed_targets(const std::vector<double>& L, std::vector<double>& turnin
 /// not. Each non-fixed vertex of a folded face is moved to the average of its neighbours
 /// (one Tutte step; on the sphere, then back onto it), repeated until nothing is folded or
 /// `max_rounds` passes. Returns the number of vertices moved; `folded` gets the count left.
+/// With `keep_longest_edges`, a move that would lengthen the vertex's longest edge is
+/// refused (for maps with torn faces, where a mirror move can throw a vertex far away).
 int untangle(const mesh::TriMesh& mesh, mesh::Vertices& positions, bool sphere,
-             const std::vector<char>& fixed, int& folded, int max_rounds = 100);
+             const std::vector<char>& fixed, int& folded, int max_rounds = 100, bool keep_longest_edges = false);
 
 /// Conformal map of a topological disk onto the unit disk. Boundary vertices land exactly
 /// on the unit circle. Throws kInvalidArgument when the mesh is not a disk or a marker is

@@ -29,6 +29,9 @@ struct PairResult {
   std::string normalization;  // what fixed the Moebius freedom, said in words
   int newton_iterations = 0;  // of the transports solved for this pair
   double max_relative_error = 0;  // their worst final cell-mass error
+  /// Their worst dual gap left, relative to the cost (0 where the cells met their
+  /// tolerance; see ShapeOptions::cost_tolerance).
+  double max_relative_cost_gap = 0;
   bool converged = true;
 };
 
@@ -71,17 +74,19 @@ struct WassersteinOptions {
 };
 
 /// One direction of Alg. 5 (eq. 3.31): W2^2 from src's pushed-forward density to dst's
-/// vertex images turned by `angle`, with dst's vertex masses. `h` is the start (empty: dst's
-/// heights for the uniform disk) and gets the solution's heights.
+/// vertex images turned by `angle`, with dst's vertex masses, to dst's transport and cost
+/// tolerances. `h` is the start (empty: dst's heights for the uniform disk) and gets the
+/// solution's heights.
 struct TransportCost {
   double w2_squared = std::numeric_limits<double>::quiet_NaN();
   int iterations = 0;
   double max_relative_error = std::numeric_limits<double>::infinity();
+  double relative_cost_gap = 0;  // the dual's rise left over the cost, when the cost test stopped it
   bool converged = false;
   std::string failure;  // why the solve stopped, when it threw
 };
-TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, double tolerance,
-                             const omt::Progress& progress, Eigen::VectorXd& h);
+TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, const omt::Progress& progress,
+                             Eigen::VectorXd& h);
 
 /// The conformal Wasserstein distance (Alg. 5, eq. 3.31): the source is the first shape's
 /// pushed-forward area density (piecewise constant on its conformal image), the sites the

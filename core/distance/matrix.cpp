@@ -52,12 +52,13 @@ std::string matrix_fingerprint(const std::vector<ShapeInput>& shapes, const Matr
     const ShapeOptions& o = x.options;
     if (o.quadrature.rings != s.quadrature.rings || o.quadrature.angles != s.quadrature.angles ||
         o.conformal_tolerance != s.conformal_tolerance || o.omt_tolerance != s.omt_tolerance ||
-        o.transport_tolerance != s.transport_tolerance || o.sphere != s.sphere)
+        o.transport_tolerance != s.transport_tolerance || o.cost_tolerance != s.cost_tolerance || o.sphere != s.sphere)
       invalid("shape '" + x.name + "' has other domain, quadrature or tolerance options than '" + shapes.front().name + "'");
   }
   char buf[256];
-  std::snprintf(buf, sizeof buf, "%s;%s;quad=%dx%d;ktol=%.17g;otol=%.17g;wtol=%.17g", method_name(opt.method),
-                s.sphere ? "sphere" : "disk", s.quadrature.rings, s.quadrature.angles, s.conformal_tolerance, s.omt_tolerance, s.transport_tolerance);
+  std::snprintf(buf, sizeof buf, "%s;%s;quad=%dx%d;ktol=%.17g;otol=%.17g;wtol=%.17g;ctol=%.17g", method_name(opt.method),
+                s.sphere ? "sphere" : "disk", s.quadrature.rings, s.quadrature.angles, s.conformal_tolerance, s.omt_tolerance,
+                s.transport_tolerance, s.cost_tolerance);
   std::string out = buf + std::string(";engine=") + kNumericsVersion;
   if (opt.method == Method::kWasserstein) {
     std::snprintf(buf, sizeof buf, ";refine=%d;debias=%d", opt.wasserstein.refine_rotation ? 1 : 0,

@@ -49,9 +49,9 @@ Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> Quadrature::sphere_poi
 
 std::string ShapeOptions::fingerprint() const {
   char buf[256];
-  std::snprintf(buf, sizeof buf, "%s;center=%d;boundary=%d;ktol=%.17g;otol=%.17g;wtol=%.17g;quad=%dx%d",
+  std::snprintf(buf, sizeof buf, "%s;center=%d;boundary=%d;ktol=%.17g;otol=%.17g;wtol=%.17g;ctol=%.17g;quad=%dx%d",
                 sphere ? "sphere" : "disk", center_vertex.value_or(-1), boundary_vertex.value_or(-1),
-                conformal_tolerance, omt_tolerance, transport_tolerance,
+                conformal_tolerance, omt_tolerance, transport_tolerance, cost_tolerance,
                 quadrature.rings, quadrature.angles);
   return buf;
 }
@@ -207,8 +207,10 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
   // direction with this shape on both sides is (same start, same tolerance).
   Eigen::VectorXd start;
   if (!(opt.transport_tolerance > 0) || !(opt.omt_tolerance > 0)) invalid("transport tolerances must be positive");
+  if (!(opt.cost_tolerance >= 0) || !std::isfinite(opt.cost_tolerance)) invalid("the cost tolerance must be 0 or positive");
   s.transport_tolerance = opt.transport_tolerance;
-  const TransportCost q = transport_cost(s, s, 0.0, opt.transport_tolerance, progress, start);
+  s.cost_tolerance = opt.cost_tolerance;
+  const TransportCost q = transport_cost(s, s, 0.0, progress, start);
   if (!q.converged)
   {
     char buf[160];
@@ -239,7 +241,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
 
 namespace {
 
-constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '4'};
+constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '5'};
 
 struct Writer {
   std::ostream& os;
@@ -311,6 +313,7 @@ void save_shape(const Shape& s, const std::string& path) {
     w.pod(s.omt_error);
     w.pod(s.quantization);
     w.pod(s.transport_tolerance);
+    w.pod(s.cost_tolerance);
     w.mat(s.sites);
     w.mat(s.mass);
     w.mat(s.tri);
@@ -350,6 +353,7 @@ bool load_shape(const std::string& path, Shape& out) {
   r.pod(s.omt_error);
   r.pod(s.quantization);
   r.pod(s.transport_tolerance);
+  r.pod(s.cost_tolerance);
   r.mat(s.sites);
   r.mat(s.mass);
   r.mat(s.tri);

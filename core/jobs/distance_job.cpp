@@ -22,6 +22,8 @@ distance::ShapeOptions ShapeRequest::shape_options() const {
   distance::ShapeOptions o;
   o.sphere = domain == "sphere";
   o.transport_tolerance = tolerance;
+  if (!(cost_tolerance >= 0) || !std::isfinite(cost_tolerance)) invalid("the cost tolerance must be 0 or a positive number");
+  o.cost_tolerance = cost_tolerance;
   o.quadrature.rings = rings;
   o.quadrature.angles = angles;
   return o;
@@ -85,6 +87,7 @@ nlohmann::json pair_json(const distance::PairResult& r, const std::string& metho
     j["raw_backward"] = r.raw_backward;
     j["newton_iterations"] = r.newton_iterations;
     j["max_relative_area_error"] = r.max_relative_error;
+    j["max_relative_cost_gap"] = r.max_relative_cost_gap;
   }
   return j;
 }

@@ -85,6 +85,7 @@ struct ShapeRequest {
   std::string domain = "disk";         // disk | sphere
   bool cut_hole = false;
   double tolerance = 1e-3;             // the Wasserstein transports' max relative cell-mass error
+  double cost_tolerance = 1e-6;        // ... or the relative dual gap of their cost (0: off)
   bool refine_rotation = false;
   bool raw = false;
   int rings = 64, angles = 256;

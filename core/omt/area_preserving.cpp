@@ -324,7 +324,10 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
       out.spreading_newton_iterations += stage.iterations;
       std::vector<char> none(nv, 0);
       int left = 0;
-      conformal::untangle(m, start, true, none, left);
+      // The Tutte steps may not lengthen a vertex's longest edge here: where the stage tore
+      // faces open, a vertex mirrored across one lands across the sphere and tears its
+      // other faces, which the next transport keeps (man kept 4 folds; with this, none).
+      conformal::untangle(m, start, true, none, left, 100, /*keep_longest_edges=*/true);
       if (left > 0 && repair_stages) {
         repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress);
         if (left > 0) repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress, BarrierSpace::kChart);

@@ -83,6 +83,13 @@ double max_relative(const Eigen::VectorXd& w, const Eigen::VectorXd& nu) {
   return ((w - nu).array().abs() / nu.array()).maxCoeff();
 }
 
+// The Kantorovich dual D at offsets psi (+ psi_lo) with the cells there and g = masses -
+// targets: w_i = |y_i|^2 + 2 h_i = 2 psi_i (OmtOptions::dual_gap_tolerance).
+double dual(const Eigen::VectorXd& psi, const Eigen::VectorXd& psi_lo, const PowerCells& cells,
+            const Eigen::VectorXd& g) {
+  return cells.second_moment.sum() - 2 * (psi + psi_lo).dot(g);
+}
+
 }  // namespace
 
 OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu_in,
@@ -206,11 +213,19 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   nu.maxCoeff(&held);
 
   // The Newton systems are solved by conjugate-gradient-like GMRES preconditioned with the
-  // sparse Cholesky factor of an earlier Hessian (CHOLMOD supernodal), refactored only when
-  // the kept one has cost about a factorization in iterations: consecutive Hessians differ
-  // little.
+  // sparse Cholesky factor of an earlier Hessian (CHOLMOD), refactored only when the kept
+  // one has cost about a factorization in iterations: consecutive Hessians differ little.
+  // Simplicial below 200K sites, supernodal above: the supernodes of a planar Laplacian are
+  // small, and on one BLAS thread their dense calls cost more than they save until then
+  // (omt-bench case (b): 5K 0.120 -> 0.085 s, 10K 0.220 -> 0.169 s, 100K 2.49 -> 2.18 s,
+  // 300K 9.59 against 9.70 s; a 5K Wasserstein pair 0.064 -> 0.054 s). CHOLMOD's own
+  // choice (CHOLMOD_AUTO) took supernodal at 5K. The sphere keeps supernodal: its maps were
+  // checked on every sphere mesh with it, and man's comes out bijective or with one fold
+  // torn across the sphere depending on the round-off (bench/RESULTS.md, issue 4, session 10).
+  constexpr int kSupernodalFrom = 200000;
   single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
-  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt;
+  Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>> llt;
+  llt.setMode(domain.is_sphere || n >= kSupernodalFrom ? Eigen::CholmodSupernodalLLt : Eigen::CholmodSimplicialLLt);
   llt.cholmod().print = 0;
   // AMD alone: by default CHOLMOD also tries METIS when AMD's fill is high, which for 1M
   // sites took 11.5 s of ordering to save 15 % of the fill (measured: analysis 14.5 s +
@@ -230,6 +245,9 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   // factorization costs 9 s.
   constexpr int kRefactorAfter = 20;
   int since_factor = 0;
+  if (opt.dual_gap_tolerance > 0 && domain.is_sphere)
+    invalid("the dual gap test is for planar domains (the sphere's cells minimize another cost)");
+  bool gap_closed = false;
   for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
     if (r.max_relative_error <= opt.tolerance) break;
     const Eigen::SparseMatrix<double> H = hessian(r.cells, sites, n, held);
@@ -270,6 +288,14 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
         if (fresh) break;
       }
       const Eigen::VectorXd dh = undrop(d, held);
+      if (pass == 0 && opt.dual_gap_tolerance > 0 && kr.converged && r.max_relative_error <= 0.25) {
+        const double rise = -g.dot(dh), value = dual(psi, psi_lo, r.cells, g);
+        if (rise >= 0 && rise <= opt.dual_gap_tolerance * std::abs(value)) {
+          r.dual_rise = rise;
+          gap_closed = true;
+          break;
+        }
+      }
       double t = 1;
       const double gnorm = relative_norm(g, nu);
       // Kitagawa-Merigot-Thibert halving. Their decrease test holds in any fixed norm (the
@@ -296,6 +322,7 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
         }
       }
     }
+    if (gap_closed) break;
     r.max_relative_error = max_relative(r.cells.mass, nu);
     if (opt.progress && !opt.progress(r.iterations + 1, r.max_relative_error))
       fail(ErrorCode::kCancelled, "optimal transport cancelled");
@@ -304,9 +331,10 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       break;  // round-off floor: no step improves any more
     }
   }
+  if (!domain.is_sphere) r.dual_value = dual(psi, psi_lo, r.cells, r.cells.mass - nu);
   r.h = (psi - 0.5 * sites.rowwise().squaredNorm()) + psi_lo;
   r.h.array() -= r.h.mean();
-  r.converged = r.max_relative_error <= opt.tolerance;
+  r.converged = r.max_relative_error <= opt.tolerance || gap_closed;
   return r;
 }
 

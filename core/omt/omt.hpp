@@ -24,6 +24,17 @@ struct OmtOptions {
   /// it leaves no cell empty and is nearer the targets than the Voronoi diagram of Alg. 2
   /// (which is the start otherwise).
   Eigen::VectorXd initial_h;
+  /// Also stop, on a planar domain, once the transport's cost is known to this relative
+  /// accuracy though its cells are not yet within `tolerance` (0: off). For callers that
+  /// want the cost, not the map (the Wasserstein distance). The Kantorovich dual
+  ///   D(h) = sum_i int_{W_i} |x - y_i|^2 dmu - sum_i w_i (mu(W_i) - nu_i),  w_i = |y_i|^2 + 2 h_i,
+  /// is concave in h with its maximum W2^2 at the solution, gradient -2 g (g_i = mu(W_i) -
+  /// nu_i) and Hessian -2 H (H of eq. 3.28), so the Newton step dh = -H^-1 g raises it by
+  /// g^T H^-1 g = -<g, dh> to second order: the Newton decrement. The solve stops when that
+  /// is at most dual_gap_tolerance D(h) and every cell is within 25 % of its target (the
+  /// quadratic phase, where the second-order prediction holds), without building the
+  /// diagram the step would lead to; OmtResult::dual_rise then holds the decrement.
+  double dual_gap_tolerance = 0;
 };
 
 struct OmtResult {
@@ -36,6 +47,13 @@ struct OmtResult {
   long linear_iterations = 0;  // preconditioned CG iterations, summed
   int factorizations = 0;
   bool warm_started = false;  // options.initial_h was the start
+  /// Planar domains: D(h), the Kantorovich dual at h (see OmtOptions::dual_gap_tolerance;
+  /// a lower bound of the transport's cost, equal to it at the solution).
+  double dual_value = 0;
+  /// When the solve stopped by OmtOptions::dual_gap_tolerance: the Newton decrement, the
+  /// rise of D left to its maximum (to second order; dual_value + dual_rise estimates the
+  /// cost to third order). 0 otherwise.
+  double dual_rise = 0;
 };
 
 /// The OT map from the uniform density on `domain` to the sites with masses `nu` (any
@@ -47,7 +65,8 @@ struct OmtResult {
 /// at least half the smaller of its target and the initial smallest cell, and the gradient
 /// shrinks by (1 - t/2) -- Alg. 2's "halve while a cell is empty", with the guarantee of
 /// global convergence. Throws Error(kInvalidArgument) for bad input; a solve that stops
-/// short returns converged = false with its iteration count and error.
+/// short returns converged = false with its iteration count and error. `converged` means
+/// max_relative_error <= tolerance, or the dual gap test of OmtOptions::dual_gap_tolerance.
 OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu,
                     const OmtOptions& options = {});
 

@@ -222,6 +222,38 @@ TEST(Omt, MassesEqualTargetsAtConvergence) {
   }
 }
 
+TEST(Omt, TheDualGapTestStopsOnceTheCostIsKnown) {
+  // The Kantorovich dual D(h) is a lower bound of the transport cost W2^2, reached at the
+  // solution; the Newton decrement predicts the rest. Stopped by the gap test, D + decrement
+  // must agree with the cost of a solve to 1e-10, and take fewer steps.
+  Points y = random_in_disk(2000, 11);
+  Eigen::VectorXd nu(2000);
+  for (int i = 0; i < 2000; ++i) nu[i] = std::exp(-8 * y.row(i).squaredNorm());
+  omt::OmtOptions exact;
+  exact.tolerance = 1e-10;
+  const auto full = omt::solve_omt(Domain::unit_disk(), y, nu, exact);
+  ASSERT_TRUE(full.converged);
+  EXPECT_EQ(full.dual_rise, 0.0);
+  const double cost = full.dual_value;
+  EXPECT_NEAR(cost, full.cells.second_moment.sum(), 1e-10 * cost);  // the dual meets the primal
+  omt::OmtOptions gap;
+  gap.tolerance = 1e-12;  // the cells alone would take the full solve and more
+  gap.dual_gap_tolerance = 1e-6;
+  const auto r = omt::solve_omt(Domain::unit_disk(), y, nu, gap);
+  ASSERT_TRUE(r.converged);
+  EXPECT_GT(r.max_relative_error, 1e-10);  // stopped by the cost, not the cells
+  EXPECT_LE(r.max_relative_error, 0.25);
+  EXPECT_GT(r.dual_rise, 0.0);
+  EXPECT_LE(r.dual_rise, 1e-6 * r.dual_value);
+  EXPECT_LE(r.dual_value, cost * (1 + 1e-12));  // a lower bound
+  EXPECT_NEAR(r.dual_value + r.dual_rise, cost, 1e-6 * cost);
+  // The decrement is the gap to first order: it accounts for 99 % of it at least.
+  EXPECT_LE(std::abs(r.dual_value + r.dual_rise - cost), 1e-2 * r.dual_rise + 1e-14 * cost);
+  EXPECT_LT(r.iterations, full.iterations);
+  // The sphere's cells minimize another cost: the test is refused there.
+  EXPECT_THROW(omt::solve_omt(Domain::stereographic_sphere(), y, nu, gap), Error);
+}
+
 TEST(Omt, HeightsAreUniqueUpToAConstant) {
   // Thm 3.8: adding a constant to h changes no cell; and the solution does not depend on
   // the order of the sites.

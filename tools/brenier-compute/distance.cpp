@@ -37,6 +37,10 @@ struct ShapeFlags {
     cmd->add_option("--tolerance", r.tolerance, "wasserstein: max relative cell-mass error of each transport (default 1e-3; the distance is read from "
                     "the dual, accurate to about the square of it)")
         ->check(CLI::PositiveNumber);
+    cmd->add_option("--cost-tolerance", r.cost_tolerance,
+                    "wasserstein: or stop each transport once its cost is known to this relative accuracy (the "
+                    "Newton decrement; default 1e-6, 0: off)")
+        ->check(CLI::NonNegativeNumber);
     cmd->add_flag("--refine-rotation", r.refine_rotation,
                   "wasserstein without markers: refine the rotation beyond the quadrature's step by exact "
                   "evaluations (3-4 times the work)");
