@@ -13,6 +13,7 @@ import json
 import math
 import os
 import random
+import shutil
 import sys
 
 import numpy as np
@@ -25,7 +26,10 @@ exe, data, work = sys.argv[1:4]
 T = Checks(exe)
 os.makedirs(work, exist_ok=True)
 check, run = T.check, T.run
+# A fresh cache on every run: entries of an earlier build with the same numerics version
+# but other bits (a change under development) would otherwise be reused.
 cache = os.path.join(work, "cache")
+shutil.rmtree(cache, ignore_errors=True)
 
 
 def mesh(name):
