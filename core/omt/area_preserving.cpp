@@ -251,7 +251,7 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   // result is still exactly area-preserving cell by cell, but it is the polar factor of
   // the spread start, not of the conformal map (out.spreading_stages > 0 says so).
   constexpr double kCrowded = 1e-8;  // armadillo's 3e-8 transports from the conformal start
-  constexpr double kDefer = 1e-6;
+  constexpr double kDefer = 1e-6, kDeferMore = 1e-5;
   constexpr int kMaxStages = 10;
   auto transport_from = [&](const mesh::Vertices& start) {
     Eigen::Matrix3d R;
@@ -304,21 +304,21 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
     if (!best || rank(out) < rank(*best)) best = out;
     return bijective;
   };
-  // The spread start: stages until no two neighbours are closer than kDefer. After each
+  // The spread start: stages until no two neighbours are closer than `defer`. After each
   // stage the folds it left get local Tutte steps (a start with fewer folds gives a final
   // centroid map with fewer: camel 0.88 -> 0.33 mean |log area ratio|), and with
   // `repair_stages` also the barrier repairs.
-  auto spread_start = [&](bool repair_stages) {
+  auto spread_start = [&](bool repair_stages, double defer) {
     out.spreading_stages = out.spreading_newton_iterations = 0;
     mesh::Vertices start = X;
     for (Eigen::VectorXd shortest = shortest_edges(m, start);
-         out.spreading_stages == 0 || shortest.minCoeff() < kDefer; shortest = shortest_edges(m, start)) {
+         out.spreading_stages == 0 || shortest.minCoeff() < defer; shortest = shortest_edges(m, start)) {
       if (out.spreading_stages == kMaxStages)
         fail(ErrorCode::kNotConverged, "the conformal sphere map is still crowded to " +
                                            std::to_string(shortest.minCoeff()) + " after " +
                                            std::to_string(kMaxStages) + " spreading stages");
       std::vector<char> deferred(nv);
-      for (int v = 0; v < nv; ++v) deferred[v] = shortest[v] < kDefer;
+      for (int v = 0; v < nv; ++v) deferred[v] = shortest[v] < defer;
       OmtResult stage;
       start = spread_once(m, start, nu, deferred, opt.omt, ++out.spreading_stages, stage);
       out.spreading_newton_iterations += stage.iterations;
@@ -342,11 +342,15 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   //    bijective this way). A stage runs even where nothing is crowded: one loose transport
   //    and its centroids order a start whose own centroid map folds (cactus: 6 folds from
   //    the conformal map, none from one stage).
-  if (attempt([&] { spread_start(false); })) return out;
+  if (attempt([&] { spread_start(false, kDefer); })) return out;
   // 3. Also the barrier repairs between stages, on the sphere and then in charts (bull and
   //    armadillo need the first: the next stage's kept centroids are then in order, where
   //    the second try leaves their regions wrapped; dino the second: 2 folds left without).
-  if (attempt([&] { spread_start(true); })) return out;
+  if (attempt([&] { spread_start(true, kDefer); })) return out;
+  // 4. Deferring more (vertices within 1e-5 of a neighbour), with the repairs: only where the
+  //    round-off of the tries above left a fold torn across the sphere. Man with CHOLMOD's
+  //    simplicial factor kept one after try 3 and none after this one (1e-7 kept it).
+  if (attempt([&] { spread_start(true, kDeferMore); })) return out;
   if (!best) std::rethrow_exception(failure);
   return std::move(*best);
 }

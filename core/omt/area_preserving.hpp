@@ -83,7 +83,7 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& mesh, const AreaPres
 /// local steps, then by the barrier repair of fold_repair.hpp on the sphere and in planar
 /// charts, kept only where it leaves the area distortion no larger. Where the conformal map
 /// is crowded below double precision, or its own map keeps folds, the transport starts
-/// from a spread map instead (two tries; see the .cpp); the first bijective map is returned,
+/// from a spread map instead (three tries; see the .cpp); the first bijective map is returned,
 /// else the nearest one, with its folds and degree reported. Errors as area_preserving_disk.
 AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& mesh, const AreaPreservingOptions& options = {});
 
