@@ -220,8 +220,8 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   // (omt-bench case (b): 5K 0.120 -> 0.085 s, 10K 0.220 -> 0.169 s, 100K 2.49 -> 2.18 s,
   // 300K 9.59 against 9.70 s; a 5K Wasserstein pair 0.064 -> 0.054 s). CHOLMOD's own
   // choice (CHOLMOD_AUTO) took supernodal at 5K. The sphere keeps supernodal: its maps were
-  // checked on every sphere mesh with it, and man's comes out bijective or with one fold
-  // torn across the sphere depending on the round-off (bench/RESULTS.md, issue 4, session 10).
+  // checked on every sphere mesh with it; with simplicial, man's map keeps a fold torn across
+  // the sphere until area_preserving_sphere's fourth try (bench/RESULTS.md, issue 4, session 10).
   constexpr int kSupernodalFrom = 200000;
   single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
   Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>> llt;
