@@ -291,6 +291,7 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       if (pass == 0 && opt.dual_gap_tolerance > 0 && kr.converged && r.max_relative_error <= 0.25) {
         const double rise = -g.dot(dh), value = dual(psi, psi_lo, r.cells, g);
         if (rise >= 0 && rise <= opt.dual_gap_tolerance * std::abs(value)) {
+          r.dual_value = value;
           r.dual_rise = rise;
           gap_closed = true;
           break;
@@ -331,7 +332,7 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       break;  // round-off floor: no step improves any more
     }
   }
-  if (!domain.is_sphere) r.dual_value = dual(psi, psi_lo, r.cells, r.cells.mass - nu);
+  if (!domain.is_sphere && !gap_closed) r.dual_value = dual(psi, psi_lo, r.cells, r.cells.mass - nu);
   r.h = (psi - 0.5 * sites.rowwise().squaredNorm()) + psi_lo;
   r.h.array() -= r.h.mean();
   r.converged = r.max_relative_error <= opt.tolerance || gap_closed;

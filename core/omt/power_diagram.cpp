@@ -154,8 +154,8 @@ Vec2 crossing(const Vec2& a, const Vec2& b, double fa, double fb, const Eigen::V
 // Keeps the part where <x, n> + c >= 0 (Sutherland-Hodgman); the new side is labelled j.
 void clip(LabelledPolygon& P, const Vec2& n, double c, int j, LabelledPolygon& out) {
   // Most half-planes leave the polygon whole (a cell's far neighbours, a triangle side
-  // beyond the cell): then nothing is copied. Each corner's value is computed once (this
-  // loop was a quarter of a Wasserstein pair's time).
+  // beyond the cell): then nothing is copied. Each corner's value is computed once, for the
+  // test and the cut both (clip was a quarter of a Wasserstein pair's time).
   const size_t m = P.p.size();
   std::vector<double>& f = P.value;
   f.resize(m);
