@@ -138,6 +138,7 @@ int serve(const Flags& f) {
 
 int main(int argc, char** argv) {
   brenier::reexec_with_passive_openmp(argv);
+  brenier::tune_allocator();
   install_stop_handlers();
   CLI::App app{"brenierd: conformal maps, optimal-transport maps and shape distances as a gRPC service"};
   Flags f;

@@ -39,6 +39,7 @@ int exit_code_for(brenier::ErrorCode code) {
 
 int main(int argc, char** argv) {
   brenier::reexec_with_passive_openmp(argv);
+  brenier::tune_allocator();
   CLI::App app{"brenier-compute: conformal and optimal-mass-transport maps of surfaces"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "brenier-compute 0.1.0");
