@@ -91,7 +91,8 @@ std::string turn_words(const Shape& a, int angles) {
 
 TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, const omt::Progress& progress,
                              Eigen::VectorXd& h) {
-  const omt::Domain domain = omt::Domain::piecewise_constant(src.sites, src.tri, src.density);
+  const omt::Domain domain = src.density_domain ? *src.density_domain
+                                                : omt::Domain::piecewise_constant(src.sites, src.tri, src.density);
   const double c = std::cos(angle), s = std::sin(angle);
   omt::Points sites(dst.sites.rows(), 2);
   sites.col(0) = c * dst.sites.col(0) - s * dst.sites.col(1);

@@ -192,6 +192,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
       fail(ErrorCode::kNotConverged, name + ": face " + std::to_string(f) + " has no area in the conformal image");
     s.density[f] = area[f] / image;
   }
+  s.density_domain = std::make_shared<const omt::Domain>(omt::Domain::piecewise_constant(s.sites, s.tri, s.density));
   // Def. 2.24's OMT map: the transport from the uniform disk onto the vertex measure
   // (Alg. 2), sampled on the quadrature: each point takes the site of its power cell.
   omt::OmtOptions oopt;
@@ -372,6 +373,14 @@ bool load_shape(const std::string& path, Shape& out) {
       (s.sphere ? s.sphere_samples.rows() != samples : s.samples.rows() != s.rings || s.samples.cols() != s.angles))
     return false;
   if (s.faces > 0 && (s.tri.minCoeff() < 0 || s.tri.maxCoeff() >= s.vertices)) return false;
+  if (!s.sphere) {
+    try {
+      s.density_domain =
+          std::make_shared<const omt::Domain>(omt::Domain::piecewise_constant(s.sites, s.tri, s.density));
+    } catch (const Error&) {
+      return false;  // a damaged file: prepared anew
+    }
+  }
   out = std::move(s);
   return true;
 }

@@ -6,6 +6,7 @@
 
 #include <Eigen/Core>
 #include <complex>
+#include <memory>
 #include <string>
 
 #include "conformal/conformal_map.hpp"
@@ -75,6 +76,10 @@ struct Shape {
   Eigen::VectorXd mass;
   mesh::Faces tri;
   Eigen::VectorXd density;
+  // Disk shapes: the source measure of every transport from this shape (Domain::
+  // piecewise_constant of sites, tri and density: its hull, bucket grid and adjacency),
+  // built once by prepare_shape and load_shape instead of once per pair and direction.
+  std::shared_ptr<const omt::Domain> density_domain;
   // The OMT map of Def. 2.24 from the uniform disk onto (sites, mass) (Alg. 2): heights h
   // and, at each quadrature point, the site of its cell, as complex numbers (ring by ring).
   Eigen::VectorXd h;
