@@ -281,8 +281,10 @@ void integrate_disk(const LabelledPolygon& P, double R, const Vec2& c, DiskBound
   }
 }
 
-// Polygon integrals about the local origin c, times a constant density.
-void integrate_polygon(const LabelledPolygon& P, const Vec2& c, CellResult& out, double density = 1.0) {
+// Polygon integrals about the local origin c, times a constant density (P: corners p and
+// side labels, a LabelledPolygon or a TrianglePiece).
+template <class Polygon>
+void integrate_polygon(const Polygon& P, const Vec2& c, CellResult& out, double density = 1.0) {
   const size_t m = P.p.size();
   Moments part;
   for (size_t k = 0; k < m; ++k) {
@@ -435,20 +437,7 @@ void integrate_density(const LabelledPolygon& P, const DensityMesh& dm, const Ve
     // -- are tried on every triangle.)
     for (size_t e = TrianglePiece::kMaskSides; e < P.line.size() && T.p.size() >= 3; ++e) cut_by(e);
     if (T.p.size() < 3) continue;  // P misses f: do not spread from it
-    if (dm.density[f] > 0) {
-      const double rho = dm.density[f];
-      Moments part;
-      const size_t np = T.p.size();
-      for (size_t v = 0; v < np; ++v) {
-        const Vec2& a = T.p[v];
-        const Vec2& b = T.p[v + 1 == np ? 0 : v + 1];
-        part.add_triangle(a - c, b - c);
-        if (T.label[v] >= 0) out.slot_length[T.label[v]] += rho * (b - a).norm();
-      }
-      out.m.area += rho * part.area;
-      out.m.first += rho * part.first;
-      out.m.second += rho * part.second;
-    }
+    if (dm.density[f] > 0) integrate_polygon(T, c, out, dm.density[f]);
     for (int e = 0; e < 3; ++e) {
       const int g = dm.neighbour(f, e);
       if (g >= 0 && stamp[g] != cell_id) {
