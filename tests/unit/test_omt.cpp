@@ -456,6 +456,120 @@ TEST(PiecewiseConstantDensity, StepDensityMovesTheBoundaryToItsClosedForm) {
   EXPECT_NEAR(s.cells.centroid(1, 0), 1.0 / 6.0, 1e-8);
 }
 
+namespace {
+
+// A convex polygon with a label per side (corner k -> k + 1), clipped by half-planes
+// <x, n> + c >= 0: the plain construction the tests below check the diagrams against.
+struct TestPolygon {
+  std::vector<Eigen::Vector2d> p;
+  std::vector<int> label;
+  void clip(const Eigen::Vector2d& n, double c, int l) {
+    TestPolygon out;
+    const size_t m = p.size();
+    for (size_t k = 0; k < m; ++k) {
+      const Eigen::Vector2d& a = p[k];
+      const Eigen::Vector2d& b = p[(k + 1) % m];
+      const double fa = a.dot(n) + c, fb = b.dot(n) + c;
+      if (fa >= 0) out.p.push_back(a), out.label.push_back(label[k]);
+      if ((fa >= 0) != (fb >= 0)) {
+        out.p.push_back(a + fa / (fa - fb) * (b - a));
+        out.label.push_back(fa >= 0 ? l : label[k]);
+      }
+    }
+    *this = out;
+  }
+};
+
+// Every cell's mass, centroid and second moment, and every dual edge's density-weighted
+// length, of power_cells(d, y, h) against each cell built from all n - 1 bisectors and cut
+// by every region (convex, counter-clockwise, with its constant density) in turn: O(n^2 +
+// n regions), no triangulation, no flood fill, no outline shortcuts.
+void expect_plain_overlay(const Domain& d, const Points& y, const Eigen::VectorXd& h,
+                          const std::vector<std::pair<std::vector<Eigen::Vector2d>, double>>& regions) {
+  const int n = static_cast<int>(y.rows());
+  auto c = omt::power_cells(d, y, h);
+  EXPECT_NEAR(c.mass.sum(), d.area(), 1e-12 * d.area());
+  Eigen::MatrixXd length = Eigen::MatrixXd::Zero(n, n);
+  for (int i = 0; i < n; ++i) {
+    TestPolygon cell;
+    cell.p = {{-3, -3}, {3, -3}, {3, 3}, {-3, 3}};
+    cell.label = {-1, -1, -1, -1};
+    const Eigen::Vector2d yi = y.row(i);
+    for (int j = 0; j < n && cell.p.size() >= 3; ++j)
+      if (j != i) cell.clip(yi - Eigen::Vector2d(y.row(j)), h[i] - h[j], j);
+    double mass = 0, second = 0;
+    Eigen::Vector2d first = Eigen::Vector2d::Zero();
+    for (const auto& [corners, rho] : regions) {
+      TestPolygon piece = cell;
+      for (size_t e = 0; e < corners.size() && piece.p.size() >= 3; ++e) {
+        const Eigen::Vector2d dir = corners[(e + 1) % corners.size()] - corners[e], normal(-dir.y(), dir.x());
+        piece.clip(normal, -corners[e].dot(normal), -1);
+      }
+      const size_t k = piece.p.size();
+      for (size_t q = 0; k >= 3 && q < k; ++q) {
+        const Eigen::Vector2d a = piece.p[q] - yi, b = piece.p[(q + 1) % k] - yi;
+        const double area = 0.5 * (a.x() * b.y() - a.y() * b.x());
+        mass += rho * area;
+        first += rho * area * (a + b) / 3;
+        second += rho * area * (a.squaredNorm() + b.squaredNorm() + a.dot(b)) / 6;
+        if (piece.label[q] >= 0) length(i, piece.label[q]) += rho * (b - a).norm();
+      }
+    }
+    EXPECT_NEAR(c.mass[i], mass, 1e-12) << "cell " << i;
+    EXPECT_NEAR(c.second_moment[i], second, 1e-12) << "cell " << i;
+    if (mass > 1e-9) {
+      EXPECT_LT((Eigen::Vector2d(c.centroid.row(i)) - (yi + first / mass)).norm(), 1e-10) << "cell " << i;
+    }
+  }
+  int edges = 0;
+  for (const auto& e : c.edges) {
+    EXPECT_NEAR(e.length, length(e.i, e.j), 1e-12) << e.i << "-" << e.j;
+    EXPECT_NEAR(e.length, length(e.j, e.i), 1e-12) << e.i << "-" << e.j;
+    edges += length(e.i, e.j) > 1e-9;
+  }
+  int reference_edges = 0;
+  for (int i = 0; i < n; ++i)
+    for (int j = i + 1; j < n; ++j) reference_edges += length(i, j) > 1e-9;
+  EXPECT_EQ(edges, reference_edges);
+  EXPECT_GT(c.empty_cells, 0);  // some sites outside the outline have no cell inside it
+}
+
+}  // namespace
+
+TEST(PiecewiseConstantDensity, CellsNearAManySidedOutlineMatchAPlainOverlay) {
+  // A 72-gon disk mesh with jittered vertices and a random density per triangle, and the
+  // 72-gon itself as a polygon domain (both clip by their outline late, near it only);
+  // sites partly outside.
+  mesh::TriMesh m = mesh::make_disk(12);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> U(-1.0, 1.0), R(0.2, 5.0);
+  Points V = m.V.leftCols(2);
+  for (int v = 0; v < V.rows(); ++v)
+    if (V.row(v).norm() < 0.95) V.row(v) += 0.02 * Eigen::RowVector2d(U(rng), U(rng));
+  Eigen::VectorXd rho(m.num_faces());
+  std::vector<std::pair<std::vector<Eigen::Vector2d>, double>> triangles;
+  for (int f = 0; f < m.num_faces(); ++f) {
+    rho[f] = R(rng);
+    std::vector<Eigen::Vector2d> t = {V.row(m.F(f, 0)), V.row(m.F(f, 1)), V.row(m.F(f, 2))};
+    if ((t[1] - t[0]).x() * (t[2] - t[0]).y() - (t[1] - t[0]).y() * (t[2] - t[0]).x() < 0) std::swap(t[1], t[2]);
+    triangles.push_back({t, rho[f]});
+  }
+  const Points y = random_in_disk(90, 5, 1.1);
+  const Eigen::VectorXd h = Eigen::VectorXd::Random(90) * 0.02;
+  {
+    SCOPED_TRACE("density on the triangles");
+    expect_plain_overlay(Domain::piecewise_constant(V, m.F, rho), y, h, triangles);
+  }
+  Points corners(72, 2);
+  std::vector<Eigen::Vector2d> gon;
+  for (int k = 0; k < 72; ++k) {
+    corners.row(k) << std::cos(2 * std::numbers::pi * k / 72), std::sin(2 * std::numbers::pi * k / 72);
+    gon.push_back(corners.row(k));
+  }
+  SCOPED_TRACE("uniform on the 72-gon");
+  expect_plain_overlay(Domain::convex_polygon(corners), y, h, {{gon, 1.0}});
+}
+
 TEST(PiecewiseConstantDensity, ASurfaceTransportedOntoItselfBarelyMoves) {
   // The surface measure pushed to the disk by the conformal map (density = surface area /
   // image area per triangle) against the same surface's vertex masses at the image
