@@ -356,8 +356,9 @@ struct TrianglePiece {
   uint64_t outside(int vertex, const Vec2& x, const LabelledPolygon& P, int cell) {
     if (stamp[vertex] == cell) return mask[vertex];
     uint64_t bits = 0;
-    for (size_t e = 0; e < std::min(P.line.size(), kMaskSides); ++e)
-      bits |= uint64_t{P.line[e].x() * x.x() + P.line[e].y() * x.y() + P.line[e].z() < 0} << e;
+    const Eigen::Vector3d* line = P.line.data();
+    for (size_t e = 0, m = std::min(P.line.size(), kMaskSides); e < m; ++e)
+      bits |= uint64_t{line[e].x() * x.x() + line[e].y() * x.y() + line[e].z() < 0} << e;
     stamp[vertex] = cell;
     return mask[vertex] = bits;
   }
@@ -446,12 +447,13 @@ void integrate_density(const LabelledPolygon& P, const DensityMesh& dm, const Ve
     if (outside_all != 0) continue;
     T.set_triangle(corner);
     auto cut_by = [&](size_t e) {
-      const Eigen::Vector3d& ln = P.line[e];
+      const double a = P.line[e].x(), b = P.line[e].y(), c0 = P.line[e].z();
       const Vec2* p = T.corner[T.now].data();
+      double* value = T.f.data();
       bool whole = true;
-      for (size_t v = 0; v < T.size; ++v) {
-        T.f[v] = ln.x() * p[v].x() + ln.y() * p[v].y() + ln.z();
-        whole = whole && !(T.f[v] < 0);
+      for (size_t v = 0, m = T.size; v < m; ++v) {
+        value[v] = a * p[v].x() + b * p[v].y() + c0;
+        whole &= !(value[v] < 0);
       }
       if (!whole) cut_piece(T, P.label[e]);
     };
