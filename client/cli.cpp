@@ -8,6 +8,7 @@
 #include <fstream>
 #include <iostream>
 #include <map>
+#include <optional>
 #include <nlohmann/json.hpp>
 
 #include "client.hpp"
@@ -230,15 +231,21 @@ int main(int argc, char** argv) {
   // Options of the Wasserstein transports, shared by distance and matrix.
   struct TransportArgs {
     double tolerance = 0;
+    std::optional<double> cost_tolerance;
     bool refine = false, raw = false;
     void add_to(CLI::App* cmd) {
       cmd->add_option("--tolerance", tolerance, "wasserstein: the transports' max relative cell-mass error (default 1e-3)")
           ->check(CLI::PositiveNumber);
+      cmd->add_option("--cost-tolerance", cost_tolerance,
+                      "wasserstein: or stop each transport once its cost is known to this relative accuracy "
+                      "(default 1e-6, 0: off)")
+          ->check(CLI::Range(0.0, 1.0));
       cmd->add_flag("--refine-rotation", refine, "wasserstein: refine the best turn by exact evaluations");
       cmd->add_flag("--raw", raw, "wasserstein: eq. 3.31 as it stands, without removing the quantization bias");
     }
     void set(pb::WassersteinOptions* w) const {
       w->set_tolerance(tolerance);
+      if (cost_tolerance) w->set_cost_tolerance(*cost_tolerance > 0 ? *cost_tolerance : -1.0);
       w->set_refine_rotation(refine);
       w->set_raw(raw);
     }

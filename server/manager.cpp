@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <chrono>
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -125,6 +126,9 @@ jobs::ShapeRequest shape_request(const Spec& s) {
   const pb::WassersteinOptions& w = s.wasserstein();
   if (!(w.tolerance() >= 0) || !std::isfinite(w.tolerance())) invalid("the tolerance must be a positive number");
   if (w.tolerance() > 0) r.tolerance = w.tolerance();
+  if (!std::isfinite(w.cost_tolerance()) || w.cost_tolerance() > 1)
+    invalid("the cost tolerance must be at most 1 (0: the default, negative: off)");
+  if (w.cost_tolerance() != 0) r.cost_tolerance = std::max(0.0, w.cost_tolerance());
   r.refine_rotation = w.refine_rotation();
   r.raw = w.raw();
   r.shape_options();  // refuses what the core refuses

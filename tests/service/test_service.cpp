@@ -194,6 +194,21 @@ TEST(Service, DistanceAndMatrixRoundTripsGiveTheEnginesAnswer) {
                          jobs::shape_input(clean_of(bumped_disk()), "bump", "bump", sm, 0, last_b), sm, 2);
   EXPECT_EQ(jm.result().distance(), marked.result.distance);
   EXPECT_NE(nlohmann::json::parse(c.fetch(jm.id()))["normalization"].get<std::string>().find("marker"), std::string::npos);
+  // The cost test off (negative over gRPC, 0 in the engine): the cells to the tolerance,
+  // no cost gap, the engine's answer; a cost tolerance above 1 is refused.
+  pb::SubmitJobRequest off = r;
+  off.mutable_distance()->mutable_wasserstein()->set_cost_tolerance(-1);
+  const pb::Job jo = c.watch(c.submit(off).id());
+  ASSERT_EQ(jo.state(), pb::SUCCEEDED) << jo.error().message();
+  jobs::ShapeRequest so = sr;
+  so.cost_tolerance = 0;
+  const jobs::DistanceOutcome exact_cells = jobs::run_distance(jobs::shape_input(clean_of(hemisphere()), "hemi", "hemi", so),
+                                                               jobs::shape_input(clean_of(bumped_disk()), "bump", "bump", so), so, 2);
+  EXPECT_EQ(jo.result().distance(), exact_cells.result.distance);
+  EXPECT_EQ(nlohmann::json::parse(c.fetch(jo.id()))["max_relative_cost_gap"].get<double>(), 0.0);
+  pb::SubmitJobRequest too_loose = r;
+  too_loose.mutable_distance()->mutable_wasserstein()->set_cost_tolerance(2);
+  EXPECT_EQ(code_of([&] { c.submit(too_loose); }), grpc::StatusCode::INVALID_ARGUMENT);
   pb::SubmitJobRequest half = r;  // markers for one mesh only
   half.mutable_distance()->mutable_markers_a()->set_center(0);
   EXPECT_EQ(code_of([&] { c.submit(half); }), grpc::StatusCode::INVALID_ARGUMENT);
