@@ -708,6 +708,19 @@ struct PowerDiagrams::Triangulation {
 
 PowerDiagrams::~PowerDiagrams() = default;
 
+void neighbour_lists(int n, const std::vector<std::pair<int, int>>& pairs, std::vector<int>& start,
+                     std::vector<int>& nbr) {
+  start.assign(n + 1, 0);
+  for (auto [a, b] : pairs) ++start[a + 1], ++start[b + 1];
+  for (int i = 0; i < n; ++i) start[i + 1] += start[i];
+  nbr.resize(start[n]);
+  std::vector<int> fill(start.begin(), start.end() - 1);
+  for (auto [a, b] : pairs) nbr[fill[a]++] = b, nbr[fill[b]++] = a;
+  // Each cell is cut by its neighbours in index order, so the round-off of a cell does not
+  // depend on how the triangulation was built or traversed (same input, same bits).
+  for (int i = 0; i < n; ++i) std::sort(nbr.begin() + start[i], nbr.begin() + start[i + 1]);
+}
+
 
 Domain Domain::unit_disk() { return Domain{}; }
 
@@ -939,29 +952,14 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& psi, const
   const RT& rt = *rt_used;
   if (domain.density && start_triangle_.size() != static_cast<size_t>(n)) start_triangle_.assign(n, -1);
   // Neighbour lists (CSR) from one pass over the triangulation's edges.
-  std::vector<int> start(n + 1, 0), nbr;
   std::vector<char> present(n, 0);
   for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) present[v->info()] = 1;
   std::vector<std::pair<int, int>> adjacent;
   adjacent.reserve(3 * static_cast<size_t>(n));
-  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e) {
-    const int a = e->first->vertex(RT::cw(e->second))->info(), b = e->first->vertex(RT::ccw(e->second))->info();
-    adjacent.emplace_back(a, b);
-    ++start[a + 1];
-    ++start[b + 1];
-  }
-  for (int i = 0; i < n; ++i) start[i + 1] += start[i];
-  nbr.resize(start[n]);
-  {
-    std::vector<int> fill(start.begin(), start.end() - 1);
-    for (auto [a, b] : adjacent) {
-      nbr[fill[a]++] = b;
-      nbr[fill[b]++] = a;
-    }
-  }
-  // Each cell clips by its neighbours in index order, so the round-off of a cell does not
-  // depend on how the triangulation was built or traversed (same input, same bits).
-  for (int i = 0; i < n; ++i) std::sort(nbr.begin() + start[i], nbr.begin() + start[i + 1]);
+  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
+    adjacent.emplace_back(e->first->vertex(RT::cw(e->second))->info(), e->first->vertex(RT::ccw(e->second))->info());
+  std::vector<int> start, nbr;
+  neighbour_lists(n, adjacent, start, nbr);
   PowerCells out;
   out.mass = Eigen::VectorXd::Zero(n);
   out.centroid = sites;

@@ -6,6 +6,7 @@
 #include <Eigen/Core>
 #include <memory>
 #include <optional>
+#include <utility>
 #include <vector>
 
 namespace brenier::omt {
@@ -88,6 +89,11 @@ struct PowerCells {
 /// caller has checked them) or non-finite input.
 PowerCells power_cells(const Domain& domain, const Points& sites, const Eigen::VectorXd& h,
                        bool check_distinct = true);
+
+/// Adjacency lists (CSR: the neighbours of i are nbr[start[i] .. start[i + 1]), ascending)
+/// of n items from a list of adjacent pairs, each pair listed once.
+void neighbour_lists(int n, const std::vector<std::pair<int, int>>& pairs, std::vector<int>& start,
+                     std::vector<int>& nbr);
 
 /// Power diagrams of one fixed set of sites for many heights, as the Newton iterations of
 /// the OMT solver need: the sites are checked once (finite, distinct unless

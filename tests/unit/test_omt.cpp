@@ -13,6 +13,7 @@
 #include "omt/fold_repair.hpp"
 #include "omt/omt.hpp"
 #include "omt/power_diagram.hpp"
+#include "omt/surface_cells.hpp"
 #include "quality/quality.hpp"
 
 using namespace brenier;
@@ -837,4 +838,113 @@ TEST(Omt, SitesCloseTogetherKeepTheirCellsAndReachTheirMasses) {
   const double share = 4 * std::numbers::pi / 42;
   EXPECT_NEAR(r.cells.mass[40], share, 1e-3 * share);
   EXPECT_NEAR(r.cells.mass[41], share, 1e-3 * share);
+}
+
+namespace {
+
+// Cells of 3-D sites on flat triangles, each built from all n - 1 half-spaces and cut from
+// every triangle (no triangulation, no flood fill), against surface_power_cells.
+void expect_plain_surface_cells(const omt::SurfaceDensity& S, const omt::Points3& y, const Eigen::VectorXd& h) {
+  const int n = static_cast<int>(y.rows());
+  const omt::SurfaceCells c = omt::surface_power_cells(S, y, h);
+  EXPECT_NEAR(c.mass.sum(), S.mass(), 1e-12 * S.mass());
+  Eigen::MatrixXd weight = Eigen::MatrixXd::Zero(n, n);
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3d yi = y.row(i);
+    double mass = 0, second = 0;
+    Eigen::Vector3d first = Eigen::Vector3d::Zero();
+    for (int f = 0; f < S.faces.rows(); ++f) {
+      std::vector<Eigen::Vector3d> p = {S.vertices.row(S.faces(f, 0)), S.vertices.row(S.faces(f, 1)),
+                                        S.vertices.row(S.faces(f, 2))};
+      const Eigen::Vector3d normal = (p[1] - p[0]).cross(p[2] - p[0]).normalized();
+      std::vector<int> label = {-1, -1, -1};
+      for (int j = 0; j < n && p.size() >= 3; ++j) {
+        if (j == i) continue;
+        const Eigen::Vector3d d = yi - Eigen::Vector3d(y.row(j));
+        std::vector<Eigen::Vector3d> q;
+        std::vector<int> ql;
+        for (size_t k = 0; k < p.size(); ++k) {
+          const Eigen::Vector3d &a = p[k], &b = p[(k + 1) % p.size()];
+          const double fa = a.dot(d) + h[i] - h[j], fb = b.dot(d) + h[i] - h[j];
+          if (fa >= 0) q.push_back(a), ql.push_back(label[k]);
+          if ((fa >= 0) != (fb >= 0)) q.push_back(a + fa / (fa - fb) * (b - a)), ql.push_back(fa >= 0 ? j : label[k]);
+        }
+        p = q;
+        label = ql;
+      }
+      for (size_t k = 1; p.size() >= 3 && k + 1 < p.size(); ++k) {
+        const double area = 0.5 * normal.dot((p[k] - p[0]).cross(p[k + 1] - p[0]));
+        const Eigen::Vector3d u = p[0] - yi, v = p[k] - yi, w = p[k + 1] - yi;
+        mass += S.density[f] * area;
+        first += S.density[f] * area * (p[0] + p[k] + p[k + 1]) / 3;
+        second += S.density[f] * area * (u.squaredNorm() + v.squaredNorm() + w.squaredNorm() + u.dot(v) + v.dot(w) + w.dot(u)) / 6;
+      }
+      for (size_t k = 0; p.size() >= 3 && k < p.size(); ++k) {
+        if (label[k] < 0) continue;
+        const Eigen::Vector3d d = yi - Eigen::Vector3d(y.row(label[k]));
+        weight(i, label[k]) += S.density[f] * (p[(k + 1) % p.size()] - p[k]).norm() / (d - d.dot(normal) * normal).norm();
+      }
+    }
+    EXPECT_NEAR(c.mass[i], mass, 1e-12) << "cell " << i;
+    EXPECT_NEAR(c.second_moment[i], second, 1e-12) << "cell " << i;
+    EXPECT_LT((Eigen::Vector3d(c.first.row(i)) - first).norm(), 1e-12) << "cell " << i;
+  }
+  int edges = 0;
+  for (const auto& e : c.edges) {
+    EXPECT_NEAR(e.length, weight(e.i, e.j), 1e-10 * std::max(1.0, weight(e.i, e.j))) << e.i << "-" << e.j;
+    EXPECT_NEAR(e.length, weight(e.j, e.i), 1e-10 * std::max(1.0, weight(e.i, e.j))) << e.i << "-" << e.j;
+    edges += weight(e.i, e.j) > 1e-9;
+  }
+  int reference = 0;
+  for (int i = 0; i < n; ++i)
+    for (int j = i + 1; j < n; ++j) reference += weight(i, j) > 1e-9;
+  EXPECT_EQ(edges, reference);
+}
+
+omt::SurfaceDensity icosphere_density(int level, unsigned seed) {
+  const mesh::TriMesh m = mesh::make_icosphere(level);
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> R(0.2, 5.0);
+  omt::SurfaceDensity S;
+  S.vertices = m.V;
+  S.faces = m.F;
+  S.density.resize(m.num_faces());
+  for (int f = 0; f < m.num_faces(); ++f) S.density[f] = R(rng);
+  return S;
+}
+
+}  // namespace
+
+TEST(SurfaceCells, ChordalCellsOnAnInscribedPolyhedronMatchAPlainOverlay) {
+  // Sites on the unit sphere with small heights, a random density on the 320 flat triangles
+  // of an icosphere inscribed in it: masses, first and second moments, and the Hessian's
+  // side weights, against every cell cut out of every triangle by all n - 1 half-spaces.
+  const omt::SurfaceDensity S = icosphere_density(2, 3);
+  std::mt19937 rng(9);
+  std::normal_distribution<double> N;
+  omt::Points3 y(50, 3);
+  for (int i = 0; i < 50; ++i) {
+    const Eigen::Vector3d v(N(rng), N(rng), N(rng));
+    y.row(i) = v.normalized().transpose();
+  }
+  const Eigen::VectorXd h = Eigen::VectorXd::Random(50) * 0.02;
+  expect_plain_surface_cells(S, y, h);
+}
+
+TEST(SurfaceCells, CosphericalSitesAtEqualHeightsGetTheirCells) {
+  // The sites are the mesh's own vertices at h = 0: all cospherical, every 3-D power sphere
+  // degenerate (the start of a transport between two sphere maps).
+  const omt::SurfaceDensity S = icosphere_density(2, 4);
+  const mesh::TriMesh sites = mesh::make_icosphere(1);
+  expect_plain_surface_cells(S, sites.V, Eigen::VectorXd::Zero(sites.num_vertices()));
+  const omt::SurfaceCells c = omt::surface_power_cells(S, sites.V, Eigen::VectorXd::Zero(sites.num_vertices()));
+  EXPECT_EQ(c.empty_cells, 0);
+}
+
+TEST(SurfaceCells, BadInputIsRefusedByName) {
+  omt::SurfaceDensity S = icosphere_density(1, 5);
+  const mesh::TriMesh sites = mesh::make_icosphere(0);
+  EXPECT_THROW(omt::surface_power_cells(S, sites.V, Eigen::VectorXd::Zero(3)), Error);
+  S.density[0] = -1;
+  EXPECT_THROW(omt::surface_power_cells(S, sites.V, Eigen::VectorXd::Zero(sites.num_vertices())), Error);
 }

@@ -1,0 +1,215 @@
+#include "omt/surface_cells.hpp"
+
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Regular_triangulation_3.h>
+#include <CGAL/Regular_triangulation_cell_base_3.h>
+#include <CGAL/Regular_triangulation_vertex_base_3.h>
+#include <CGAL/Triangulation_vertex_base_with_info_3.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <utility>
+
+#include "common/error.hpp"
+
+namespace brenier::omt {
+
+namespace {
+
+using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+using Vb = CGAL::Triangulation_vertex_base_with_info_3<int, K, CGAL::Regular_triangulation_vertex_base_3<K>>;
+using Cb = CGAL::Regular_triangulation_cell_base_3<K>;
+using RT3 = CGAL::Regular_triangulation_3<K, CGAL::Triangulation_data_structure_3<Vb, Cb>>;
+using Vec3 = Eigen::Vector3d;
+
+// A convex polygon of a triangle's plane; label[k]: the neighbour slot of side k -> k + 1
+// (-1: a side of the triangle).
+struct Piece {
+  std::vector<Vec3> p, p_next;
+  std::vector<int> label, label_next;
+  std::vector<double> f;
+  // Keeps <x, d> + c >= 0 (Sutherland-Hodgman); the new side is labelled j.
+  void cut(const Vec3& d, double c, int j) {
+    const size_t m = p.size();
+    f.resize(m);
+    bool whole = true;
+    for (size_t k = 0; k < m; ++k) {
+      f[k] = p[k].dot(d) + c;
+      whole = whole && !(f[k] < 0);
+    }
+    if (whole) return;
+    p_next.clear();
+    label_next.clear();
+    for (size_t k = 0; k < m; ++k) {
+      const size_t k1 = k + 1 == m ? 0 : k + 1;
+      if (f[k] >= 0) {
+        p_next.push_back(p[k]);
+        label_next.push_back(label[k]);
+        if (f[k1] < 0) {
+          p_next.push_back(p[k] + (f[k] / (f[k] - f[k1])) * (p[k1] - p[k]));
+          label_next.push_back(j);
+        }
+      } else if (f[k1] >= 0) {
+        p_next.push_back(p[k] + (f[k] / (f[k] - f[k1])) * (p[k1] - p[k]));
+        label_next.push_back(label[k]);
+      }
+    }
+    p.swap(p_next);
+    label.swap(label_next);
+  }
+};
+
+// What one triangle gives one cell: its piece's integrals and, per side on a neighbour's
+// plane, the side's Hessian weight.
+struct Contribution {
+  int cell;
+  double mass, second;
+  Vec3 first;
+  int slots_begin, slots_end;  // into the triangle's slot list
+};
+
+struct TriangleResult {
+  std::vector<Contribution> parts;
+  std::vector<std::pair<int, double>> slots;  // (CSR slot of the cell's neighbour, weight)
+};
+
+}  // namespace
+
+void SurfaceDensity::check() const {
+  const long nv = vertices.rows(), nf = faces.rows();
+  if (nf == 0) invalid("the surface has no triangles");
+  if (density.size() != nf)
+    invalid("density: " + std::to_string(density.size()) + " values for " + std::to_string(nf) + " triangles");
+  if (!vertices.allFinite()) invalid("the surface has non-finite vertices");
+  for (long f = 0; f < nf; ++f) {
+    for (int k = 0; k < 3; ++k)
+      if (faces(f, k) < 0 || faces(f, k) >= nv) invalid("triangle " + std::to_string(f) + " has a vertex out of range");
+    if (!(density[f] >= 0) || !std::isfinite(density[f]))
+      invalid("the density of triangle " + std::to_string(f) + " must be finite and >= 0");
+    const Vec3 a = vertices.row(faces(f, 0)), b = vertices.row(faces(f, 1)), c = vertices.row(faces(f, 2));
+    if (!((b - a).cross(c - a).norm() > 0)) invalid("triangle " + std::to_string(f) + " has no area");
+  }
+}
+
+double SurfaceDensity::mass() const {
+  double m = 0;
+  for (long f = 0; f < faces.rows(); ++f) {
+    const Vec3 a = vertices.row(faces(f, 0)), b = vertices.row(faces(f, 1)), c = vertices.row(faces(f, 2));
+    m += density[f] * 0.5 * (b - a).cross(c - a).norm();
+  }
+  return m;
+}
+
+SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& h) {
+  surface.check();
+  const int n = static_cast<int>(sites.rows());
+  if (n == 0) invalid("no sites");
+  if (h.size() != n) invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(n) + " sites");
+  if (!sites.allFinite() || !h.allFinite()) invalid("sites and heights must be finite");
+  // The 3-D regular triangulation: power weight |y_i|^2 + 2 h_i (CGAL's power distance
+  // |x - y_i|^2 - w_i is then |x|^2 - 2 (<x, y_i> + h_i)). Its edges are the candidate
+  // neighbours of every cell (a superset of the surface's: cutting by more half-spaces than
+  // needed is harmless); hidden sites have no cell.
+  std::vector<std::pair<RT3::Weighted_point, int>> points(n);
+  for (int i = 0; i < n; ++i)
+    points[i] = {RT3::Weighted_point(K::Point_3(sites(i, 0), sites(i, 1), sites(i, 2)),
+                                     sites.row(i).squaredNorm() + 2 * h[i]),
+                 i};
+  RT3 rt;
+  rt.insert(points.begin(), points.end());
+  std::vector<std::pair<int, int>> adjacent;
+  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
+    adjacent.emplace_back(e->first->vertex(e->second)->info(), e->first->vertex(e->third)->info());
+  std::vector<int> start, nbr;
+  neighbour_lists(n, adjacent, start, nbr);
+  std::vector<char> present(n, 0);
+  for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) present[v->info()] = 1;
+
+  const int nf = static_cast<int>(surface.faces.rows());
+  std::vector<TriangleResult> result(nf);
+#pragma omp parallel
+  {
+    Piece piece;
+    std::vector<int> stamp(n, -1), queue;
+    RT3::Cell_handle hint;
+#pragma omp for schedule(dynamic, 64)
+    for (int f = 0; f < nf; ++f) {
+      const double rho = surface.density[f];
+      if (!(rho > 0)) continue;
+      const Vec3 corner[3] = {surface.vertices.row(surface.faces(f, 0)), surface.vertices.row(surface.faces(f, 1)),
+                              surface.vertices.row(surface.faces(f, 2))};
+      const Vec3 normal = (corner[1] - corner[0]).cross(corner[2] - corner[0]).normalized();
+      const Vec3 g = (corner[0] + corner[1] + corner[2]) / 3;
+      // The cells meeting T tile it (the 3-D diagram cut by T's plane is a power diagram of
+      // that plane), so they are connected through their sides in T: a flood fill from the
+      // owner of T's centroid, each piece's labelled sides naming the cells to visit.
+      const RT3::Vertex_handle owner = rt.nearest_power_vertex(K::Point_3(g.x(), g.y(), g.z()), hint);
+      if (owner == RT3::Vertex_handle()) continue;
+      hint = owner->cell();
+      TriangleResult& out = result[f];
+      queue.assign(1, owner->info());
+      stamp[owner->info()] = f;
+      for (size_t q = 0; q < queue.size(); ++q) {
+        const int i = queue[q];
+        const Vec3 yi = sites.row(i);
+        piece.p.assign(corner, corner + 3);
+        piece.label.assign(3, -1);
+        for (int k = start[i]; k < start[i + 1] && piece.p.size() >= 3; ++k) {
+          const int j = nbr[k];
+          piece.cut(yi - Vec3(sites.row(j)), h[i] - h[j], k);
+        }
+        const size_t m = piece.p.size();
+        if (m < 3) continue;
+        Contribution c{i, 0, 0, Vec3::Zero(), static_cast<int>(out.slots.size()), 0};
+        const Vec3& p0 = piece.p[0];
+        for (size_t k = 1; k + 1 < m; ++k) {
+          const Vec3 &p1 = piece.p[k], &p2 = piece.p[k + 1];
+          const double area = 0.5 * normal.dot((p1 - p0).cross(p2 - p0));
+          const Vec3 u = p0 - yi, v = p1 - yi, w = p2 - yi;
+          c.mass += rho * area;
+          c.first += rho * area * (p0 + p1 + p2) / 3;
+          c.second += rho * area * (u.squaredNorm() + v.squaredNorm() + w.squaredNorm() + u.dot(v) + v.dot(w) + w.dot(u)) / 6;
+        }
+        for (size_t k = 0; k < m; ++k) {
+          const int slot = piece.label[k];
+          if (slot < 0) continue;
+          const double length = (piece.p[k + 1 == m ? 0 : k + 1] - piece.p[k]).norm();
+          if (!(length > 0)) continue;
+          const Vec3 d = yi - Vec3(sites.row(nbr[slot]));
+          const double speed = (d - d.dot(normal) * normal).norm();  // |P_T (y_i - y_j)|
+          if (speed > 0) out.slots.emplace_back(slot, rho * length / speed);
+          const int j = nbr[slot];
+          if (stamp[j] != f) {
+            stamp[j] = f;
+            queue.push_back(j);
+          }
+        }
+        c.slots_end = static_cast<int>(out.slots.size());
+        out.parts.push_back(c);
+      }
+    }
+  }
+  // Sums in triangle order: the same bits on any number of threads.
+  SurfaceCells cells;
+  cells.mass = Eigen::VectorXd::Zero(n);
+  cells.second_moment = Eigen::VectorXd::Zero(n);
+  cells.first = Points3::Zero(n, 3);
+  std::vector<double> slot_weight(nbr.size(), 0.0);
+  for (const TriangleResult& r : result)
+    for (const Contribution& c : r.parts) {
+      cells.mass[c.cell] += c.mass;
+      cells.second_moment[c.cell] += c.second;
+      cells.first.row(c.cell) += c.first.transpose();
+      for (int s = c.slots_begin; s < c.slots_end; ++s) slot_weight[r.slots[s].first] += r.slots[s].second;
+    }
+  for (int i = 0; i < n; ++i) {
+    if (!present[i] || !(cells.mass[i] > 0)) ++cells.empty_cells;
+    for (int k = start[i]; k < start[i + 1]; ++k)
+      if (i < nbr[k] && slot_weight[k] > 0) cells.edges.push_back({i, nbr[k], slot_weight[k]});
+  }
+  return cells;
+}
+
+}  // namespace brenier::omt

@@ -1,0 +1,56 @@
+// Laguerre cells of the squared Euclidean cost in R^3 on a triangulated surface: the first
+// building block of the exact Wasserstein distance on the sphere (issue 5; dissertation
+// Alg. 5 with the squared chordal cost, eq. 3.31). The source measure is a constant density
+// on each flat triangle of a surface (a shape's sphere image: the polyhedron inscribed in
+// the sphere, as the disk distance uses the flat triangles of the conformal image); the
+// sites y_i are points of R^3 (the other shape's vertex images on the sphere).
+//
+// W_i = {x on the surface : <x, y_i> + h_i >= <x, y_j> + h_j for all j}, the restriction of
+// the 3-D power diagram of the weighted points (y_i, |y_i|^2 + 2 h_i): the cells of
+// c(x, y) = |x - y|^2 with dual weights |y_i|^2 + 2 h_i. Every piece W_i ∩ T of a flat
+// triangle T is a convex polygon of T's plane, integrated exactly.
+//
+// Not yet used by the distances: the Newton solver on these cells and the distance on the
+// sphere come next (bench/RESULTS.md, issue 5, session 11).
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "omt/power_diagram.hpp"
+
+namespace brenier::omt {
+
+using Points3 = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+
+/// A constant density on each flat triangle of a surface in R^3.
+struct SurfaceDensity {
+  Points3 vertices;
+  Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor> faces;
+  Eigen::VectorXd density;  // per face, >= 0
+  /// Throws Error(kInvalidArgument) for indices out of range, non-finite vertices,
+  /// negative or non-finite densities, or a degenerate (zero-area) triangle.
+  void check() const;
+  double mass() const;  // sum of density times area
+};
+
+struct SurfaceCells {
+  Eigen::VectorXd mass;           // ∫_{W_i} rho dA
+  Points3 first;                  // ∫_{W_i} x rho dA (the centroid times the mass)
+  Eigen::VectorXd second_moment;  // ∫_{W_i} |x - y_i|^2 rho dA: the transport cost
+  /// One per pair of cells sharing a side of positive length on some triangle: `length` is
+  /// -dm_i/dh_j = sum over the triangles T of rho_T |side ∩ T| / |P_T (y_i - y_j)| (P_T the
+  /// projection onto T's plane: how fast the side sweeps T as h_j moves), the Hessian's
+  /// off-diagonal weight of the transport energy.
+  std::vector<DualEdge> edges;
+  int empty_cells = 0;
+};
+
+/// The cells of `sites` at heights h on the surface. Pieces are found per triangle by a flood
+/// fill over the cells from the owner of the triangle's centroid, each piece cut by its
+/// cell's neighbours in CGAL's 3-D regular triangulation; triangles run in parallel and the
+/// sums are taken in triangle order, so the result does not depend on the thread count.
+/// Throws Error(kInvalidArgument) for sizes that do not match or non-finite input.
+SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& h);
+
+}  // namespace brenier::omt
