@@ -92,9 +92,7 @@ double dual(const Eigen::VectorXd& psi, const Eigen::VectorXd& psi_lo, const Pow
 
 }  // namespace
 
-OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu_in,
-                    const OmtOptions& opt) {
-  const int n = static_cast<int>(sites.rows());
+void check_transport_input(int n, const Eigen::VectorXd& nu_in, const OmtOptions& opt) {
   if (n == 0) invalid("no sites");
   if (nu_in.size() != n)
     invalid("target masses: " + std::to_string(nu_in.size()) + " for " + std::to_string(n) + " sites");
@@ -102,6 +100,12 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
     if (!(nu_in[i] > 0) || !std::isfinite(nu_in[i]))
       invalid("target mass of site " + std::to_string(i) + " is " + std::to_string(nu_in[i]) + "; it must be positive");
   if (!(opt.tolerance > 0)) invalid("the OMT tolerance must be positive");
+}
+
+OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu_in,
+                    const OmtOptions& opt) {
+  const int n = static_cast<int>(sites.rows());
+  check_transport_input(n, nu_in, opt);
   OmtResult r;
   r.target = nu_in * (domain.area() / nu_in.sum());
   const Eigen::VectorXd& nu = r.target;

@@ -56,6 +56,10 @@ struct OmtResult {
   double dual_rise = 0;
 };
 
+/// Throws Error(kInvalidArgument) unless there are sites, one positive finite target mass per
+/// site, and a positive tolerance: the checks every transport solver makes first.
+void check_transport_input(int sites, const Eigen::VectorXd& nu, const OmtOptions& options);
+
 /// The OT map from the uniform density on `domain` to the sites with masses `nu` (any
 /// positive scale: they are scaled to the domain's area). Sites must be distinct; they may
 /// lie anywhere (those outside the domain get cells along its edge). Newton direction from

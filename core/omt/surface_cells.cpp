@@ -6,13 +6,16 @@
 #include <CGAL/Regular_triangulation_vertex_base_3.h>
 #include <CGAL/Triangulation_vertex_base_with_info_3.h>
 
+#include <Eigen/CholmodSupport>
 #include <Eigen/Geometry>
+#include <Eigen/SparseCore>
 #include <algorithm>
 #include <cmath>
 #include <string>
 #include <utility>
 
 #include "common/error.hpp"
+#include "common/parallel.hpp"
 
 namespace brenier::omt {
 
@@ -210,6 +213,93 @@ SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& s
       if (i < nbr[k] && slot_weight[k] > 0) cells.edges.push_back({i, nbr[k], slot_weight[k]});
   }
   return cells;
+}
+
+SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& nu_in,
+                                   const OmtOptions& opt) {
+  const int n = static_cast<int>(sites.rows());
+  check_transport_input(n, nu_in, opt);
+  surface.check();
+  SurfaceOmtResult r;
+  r.target = nu_in * (surface.mass() / nu_in.sum());
+  const Eigen::VectorXd& nu = r.target;
+  Eigen::VectorXd h = Eigen::VectorXd::Zero(n);
+  if (opt.initial_h.size() != 0) {
+    if (opt.initial_h.size() != n || !opt.initial_h.allFinite())
+      invalid("initial heights: " + std::to_string(n) + " finite values needed");
+    h = opt.initial_h;
+  }
+  auto max_relative = [&](const Eigen::VectorXd& m) { return ((m - nu).array().abs() / nu.array()).maxCoeff(); };
+  auto relative_norm = [&](const Eigen::VectorXd& g) { return (g.array() / nu.array()).matrix().norm(); };
+  r.cells = surface_power_cells(surface, sites, h);
+  r.max_relative_error = max_relative(r.cells.mass);
+  // Kitagawa-Merigot-Thibert damping: every cell keeps at least eps0.
+  const double eps0 = 0.5 * std::min(nu.minCoeff(), r.cells.mass.minCoeff());
+  if (!(eps0 > 0))
+    fail(ErrorCode::kNotConverged, std::to_string(r.cells.empty_cells) + " of " + std::to_string(n) +
+                                       " sites have empty cells on the surface at the start");
+  int held = 0;
+  nu.maxCoeff(&held);  // its height is held: the energy is invariant under h + constant
+  auto slot = [held](int i) { return i < held ? i : i - 1; };
+  single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
+  Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>> llt;
+  llt.setMode(Eigen::CholmodSimplicialLLt);
+  llt.cholmod().print = 0;
+  for (r.iterations = 0; r.iterations < opt.max_iterations && r.max_relative_error > opt.tolerance; ++r.iterations) {
+    // The Jacobian of the masses (eq. 3.28 on the surface): the weighted graph Laplacian of
+    // the cells' sides, dm_i/dh_j = -w_ij, dm_i/dh_i = sum_j w_ij; without the held height.
+    const Eigen::VectorXd g = r.cells.mass - nu;
+    std::vector<Eigen::Triplet<double>> entries;
+    Eigen::VectorXd diag = Eigen::VectorXd::Zero(n);
+    for (const DualEdge& e : r.cells.edges) {
+      diag[e.i] += e.length;
+      diag[e.j] += e.length;
+      if (e.i == held || e.j == held) continue;
+      entries.emplace_back(slot(e.i), slot(e.j), -e.length);
+      entries.emplace_back(slot(e.j), slot(e.i), -e.length);
+    }
+    for (int i = 0; i < n; ++i)
+      if (i != held) entries.emplace_back(slot(i), slot(i), diag[i]);
+    Eigen::SparseMatrix<double> H(n - 1, n - 1);
+    H.setFromTriplets(entries.begin(), entries.end());
+    llt.compute(H);
+    if (llt.info() != Eigen::Success)
+      fail(ErrorCode::kNotConverged, "the surface transport's Hessian is singular at iteration " +
+                                         std::to_string(r.iterations) + " (a cell without neighbours)");
+    Eigen::VectorXd rhs(n - 1);
+    for (int i = 0; i < n; ++i)
+      if (i != held) rhs[slot(i)] = -g[i];
+    const Eigen::VectorXd d = llt.solve(rhs);
+    Eigen::VectorXd dh = Eigen::VectorXd::Zero(n);
+    for (int i = 0; i < n; ++i)
+      if (i != held) dh[i] = d[slot(i)];
+    const double gnorm = relative_norm(g);
+    bool accepted = false;
+    double t = 1;
+    for (int halvings = 0; halvings < 30 && !accepted; ++halvings, t *= 0.5) {
+      const Eigen::VectorXd trial = h + t * dh;
+      SurfaceCells c = surface_power_cells(surface, sites, trial);
+      if (c.empty_cells > 0 || c.mass.minCoeff() < eps0) continue;
+      if (relative_norm(c.mass - nu) <= (1 - 0.5 * t) * gnorm || max_relative(c.mass) <= opt.tolerance) {
+        h = trial;
+        r.cells = std::move(c);
+        accepted = true;
+      }
+    }
+    r.max_relative_error = max_relative(r.cells.mass);
+    if (opt.progress && !opt.progress(r.iterations + 1, r.max_relative_error))
+      fail(ErrorCode::kCancelled, "optimal transport cancelled");
+    if (!accepted) {
+      ++r.iterations;
+      break;  // round-off floor: no step improves any more
+    }
+  }
+  Eigen::VectorXd w(n);
+  for (int i = 0; i < n; ++i) w[i] = sites.row(i).squaredNorm() + 2 * h[i];
+  r.dual_value = r.cells.second_moment.sum() - w.dot(r.cells.mass - nu);
+  r.h = h.array() - h.mean();
+  r.converged = r.max_relative_error <= opt.tolerance;
+  return r;
 }
 
 }  // namespace brenier::omt

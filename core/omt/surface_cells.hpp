@@ -17,6 +17,7 @@
 #include <Eigen/Core>
 #include <vector>
 
+#include "omt/omt.hpp"
 #include "omt/power_diagram.hpp"
 
 namespace brenier::omt {
@@ -52,5 +53,27 @@ struct SurfaceCells {
 /// sums are taken in triangle order, so the result does not depend on the thread count.
 /// Throws Error(kInvalidArgument) for sizes that do not match or non-finite input.
 SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& h);
+
+struct SurfaceOmtResult {
+  Eigen::VectorXd h;       // heights, mean zero (unique up to a constant where the cells touch)
+  SurfaceCells cells;      // at h
+  Eigen::VectorXd target;  // nu, scaled to the surface's mass
+  int iterations = 0;
+  double max_relative_error = 0;  // max_i |m_i - nu_i| / nu_i at h
+  bool converged = false;
+  /// The Kantorovich dual at h: sum_i ∫_{W_i} |x - y_i|^2 dmu - sum_i w_i (m_i - nu_i), w_i =
+  /// |y_i|^2 + 2 h_i; W2^2 at the solution, a lower bound of it anywhere.
+  double dual_value = 0;
+};
+
+/// Semi-discrete transport from the surface's density to the sites with masses nu (scaled to
+/// the surface's mass), squared Euclidean cost: Newton's method on the convex energy of
+/// Alg. 2 with Kitagawa-Merigot-Thibert damping (every cell keeps half the smaller of its
+/// target and the start's smallest cell), one set of surface cells per trial step, each
+/// Newton system factored afresh (CHOLMOD). options.tolerance: max relative cell-mass
+/// error; options.initial_h: the start (default 0: for sites on the unit sphere, the
+/// spherical Voronoi diagram). Not yet used by the distances.
+SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& nu,
+                                   const OmtOptions& options = {});
 
 }  // namespace brenier::omt

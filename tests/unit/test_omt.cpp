@@ -948,3 +948,81 @@ TEST(SurfaceCells, BadInputIsRefusedByName) {
   S.density[0] = -1;
   EXPECT_THROW(omt::surface_power_cells(S, sites.V, Eigen::VectorXd::Zero(sites.num_vertices())), Error);
 }
+
+TEST(SurfaceOmt, RecoversTheHeightsThatMadeTheTargets) {
+  // Targets: the cells' masses at random heights h*; from h = 0 the transport must reach them
+  // and find h* again (unique up to a constant), its dual value the cost there.
+  const omt::SurfaceDensity S = icosphere_density(3, 6);
+  std::mt19937 rng(12);
+  std::normal_distribution<double> N;
+  omt::Points3 y(80, 3);
+  for (int i = 0; i < 80;) {  // at least 0.2 apart
+    const Eigen::Vector3d v = Eigen::Vector3d(N(rng), N(rng), N(rng)).normalized();
+    bool apart = true;
+    for (int j = 0; j < i; ++j) apart = apart && (Eigen::Vector3d(y.row(j)) - v).norm() > 0.2;
+    if (apart) y.row(i++) = v.transpose();
+  }
+  Eigen::VectorXd truth = Eigen::VectorXd::Random(80) * 0.01;
+  truth.array() -= truth.mean();
+  const omt::SurfaceCells at_truth = omt::surface_power_cells(S, y, truth);
+  ASSERT_EQ(at_truth.empty_cells, 0);
+  const omt::SurfaceOmtResult r = omt::solve_surface_omt(S, y, at_truth.mass);
+  ASSERT_TRUE(r.converged) << r.max_relative_error << " after " << r.iterations;
+  EXPECT_LE(r.max_relative_error, 1e-8);
+  EXPECT_LE(r.iterations, 12);
+  EXPECT_LT((r.h - truth).cwiseAbs().maxCoeff(), 1e-7);
+  EXPECT_NEAR(r.dual_value, at_truth.second_moment.sum(), 1e-9 * at_truth.second_moment.sum());
+}
+
+TEST(SurfaceOmt, SymmetricSitesWithEqualMassesGetSymmetricHeights) {
+  // The 42 vertices of a once-subdivided icosahedron, equal masses, the uniform density on
+  // a thrice-subdivided one: the icosahedral rotations permute the 12 five-valent sites
+  // among themselves and the 30 six-valent ones, so each kind shares one height.
+  omt::SurfaceDensity S = icosphere_density(3, 7);
+  S.density.setOnes();
+  const mesh::TriMesh sites = mesh::make_icosphere(1);
+  const omt::SurfaceOmtResult r =
+      omt::solve_surface_omt(S, sites.V, Eigen::VectorXd::Ones(sites.num_vertices()));
+  ASSERT_TRUE(r.converged) << r.max_relative_error;
+  std::vector<int> degree(sites.num_vertices(), 0);
+  for (int f = 0; f < sites.num_faces(); ++f)
+    for (int k = 0; k < 3; ++k) ++degree[sites.F(f, k)];
+  double lo[2] = {1e9, 1e9}, hi[2] = {-1e9, -1e9};
+  int count[2] = {0, 0};
+  for (int v = 0; v < sites.num_vertices(); ++v) {
+    const int k = degree[v] == 5 ? 0 : 1;
+    lo[k] = std::min(lo[k], r.h[v]), hi[k] = std::max(hi[k], r.h[v]);
+    ++count[k];
+  }
+  EXPECT_EQ(count[0], 12);
+  EXPECT_EQ(count[1], 30);
+  EXPECT_LT(hi[0] - lo[0], 1e-9);
+  EXPECT_LT(hi[1] - lo[1], 1e-9);
+  EXPECT_GT(std::abs(lo[0] - lo[1]), 1e-6);  // the Voronoi cells differ, so the heights must
+}
+
+TEST(SurfaceCells, SideWeightsAreTheMassesDerivatives) {
+  // -dm_i/dh_j by central differences against each side's weight rho |side| / |P_T (y_i - y_j)|,
+  // and dm_i/dh_i against the sum of i's weights (the Hessian of the transport energy).
+  const omt::SurfaceDensity S = icosphere_density(3, 8);
+  const mesh::TriMesh sites = mesh::make_icosphere(1);
+  const int n = sites.num_vertices();
+  Eigen::VectorXd h = Eigen::VectorXd::Random(n) * 0.01;
+  const omt::SurfaceCells c = omt::surface_power_cells(S, sites.V, h);
+  ASSERT_GT(c.edges.size(), 100u);
+  Eigen::VectorXd diag = Eigen::VectorXd::Zero(n);
+  for (const auto& e : c.edges) diag[e.i] += e.length, diag[e.j] += e.length;
+  const double eps = 1e-6;
+  for (int j : {0, 7, 20, 41}) {
+    Eigen::VectorXd up = h, down = h;
+    up[j] += eps;
+    down[j] -= eps;
+    const Eigen::VectorXd dm = (omt::surface_power_cells(S, sites.V, up).mass - omt::surface_power_cells(S, sites.V, down).mass) / (2 * eps);
+    EXPECT_NEAR(dm[j], diag[j], 1e-5 * diag[j]) << j;
+    for (const auto& e : c.edges) {
+      if (e.i != j && e.j != j) continue;
+      const int i = e.i == j ? e.j : e.i;
+      EXPECT_NEAR(-dm[i], e.length, 1e-5 * diag[j]) << i << "-" << j;
+    }
+  }
+}
