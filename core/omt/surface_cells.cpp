@@ -130,13 +130,14 @@ SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& s
   std::vector<char> present(n, 0);
   for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) present[v->info()] = 1;
 
+  const int first_present = static_cast<int>(std::find(present.begin(), present.end(), 1) - present.begin());
   const int nf = static_cast<int>(surface.faces.rows());
   std::vector<TriangleResult> result(nf);
 #pragma omp parallel
   {
     Piece piece;
     std::vector<int> stamp(n, -1), queue;
-    RT3::Cell_handle hint;
+    int last_owner = first_present;
 #pragma omp for schedule(dynamic, 64)
     for (int f = 0; f < nf; ++f) {
       const double rho = surface.density[f];
@@ -148,49 +149,70 @@ SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& s
       // The cells meeting T tile it (the 3-D diagram cut by T's plane is a power diagram of
       // that plane), so they are connected through their sides in T: a flood fill from the
       // owner of T's centroid, each piece's labelled sides naming the cells to visit.
-      const RT3::Vertex_handle owner = rt.nearest_power_vertex(K::Point_3(g.x(), g.y(), g.z()), hint);
-      if (owner == RT3::Vertex_handle()) continue;
-      hint = owner->cell();
+      // The owner: a greedy walk over the triangulation's edges from the last triangle's
+      // owner (a site whose cell misses g has a neighbour scoring higher there: the segment
+      // from its cell to g leaves it through a neighbour's facet, where the two scores' affine
+      // difference changes sign), in doubles; CGAL's exact nearest_power_vertex, whose exact
+      // fallbacks on cospherical sites took a third of the time, only where the walk's owner
+      // gets no piece (round-off at a tie).
       TriangleResult& out = result[f];
-      queue.assign(1, owner->info());
-      stamp[owner->info()] = f;
-      for (size_t q = 0; q < queue.size(); ++q) {
-        const int i = queue[q];
-        const Vec3 yi = sites.row(i);
-        piece.p.assign(corner, corner + 3);
-        piece.label.assign(3, -1);
-        for (int k = start[i]; k < start[i + 1] && piece.p.size() >= 3; ++k) {
-          const int j = nbr[k];
-          piece.cut(yi - Vec3(sites.row(j)), h[i] - h[j], k);
+      auto score = [&](int j) { return g.dot(Vec3(sites.row(j))) + h[j]; };
+      int owner = last_owner;
+      for (double best = score(owner);;) {
+        const int from = owner;
+        for (int k = start[from]; k < start[from + 1]; ++k)
+          if (const double sj = score(nbr[k]); sj > best) best = sj, owner = nbr[k];
+        if (owner == from) break;
+      }
+      for (int attempt = 0; attempt < 2 && out.parts.empty(); ++attempt) {
+        if (attempt == 1) {
+          const RT3::Vertex_handle v = rt.nearest_power_vertex(K::Point_3(g.x(), g.y(), g.z()));
+          if (v == RT3::Vertex_handle() || v->info() == owner) break;
+          owner = v->info();
+          out.slots.clear();
         }
-        const size_t m = piece.p.size();
-        if (m < 3) continue;
-        Contribution c{i, 0, 0, Vec3::Zero(), static_cast<int>(out.slots.size()), 0};
-        const Vec3& p0 = piece.p[0];
-        for (size_t k = 1; k + 1 < m; ++k) {
-          const Vec3 &p1 = piece.p[k], &p2 = piece.p[k + 1];
-          const double area = 0.5 * normal.dot((p1 - p0).cross(p2 - p0));
-          const Vec3 u = p0 - yi, v = p1 - yi, w = p2 - yi;
-          c.mass += rho * area;
-          c.first += rho * area * (p0 + p1 + p2) / 3;
-          c.second += rho * area * (u.squaredNorm() + v.squaredNorm() + w.squaredNorm() + u.dot(v) + v.dot(w) + w.dot(u)) / 6;
-        }
-        for (size_t k = 0; k < m; ++k) {
-          const int slot = piece.label[k];
-          if (slot < 0) continue;
-          const double length = (piece.p[k + 1 == m ? 0 : k + 1] - piece.p[k]).norm();
-          if (!(length > 0)) continue;
-          const Vec3 d = yi - Vec3(sites.row(nbr[slot]));
-          const double speed = (d - d.dot(normal) * normal).norm();  // |P_T (y_i - y_j)|
-          if (speed > 0) out.slots.emplace_back(slot, rho * length / speed);
-          const int j = nbr[slot];
-          if (stamp[j] != f) {
-            stamp[j] = f;
-            queue.push_back(j);
+        last_owner = owner;
+        queue.assign(1, owner);
+        stamp[owner] = 2 * f + attempt;
+        for (size_t q = 0; q < queue.size(); ++q) {
+          const int i = queue[q];
+          const Vec3 yi = sites.row(i);
+          piece.p.assign(corner, corner + 3);
+          piece.label.assign(3, -1);
+          for (int k = start[i]; k < start[i + 1] && piece.p.size() >= 3; ++k) {
+            const int j = nbr[k];
+            piece.cut(yi - Vec3(sites.row(j)), h[i] - h[j], k);
           }
+          const size_t m = piece.p.size();
+          if (m < 3) continue;
+          Contribution c{i, 0, 0, Vec3::Zero(), static_cast<int>(out.slots.size()), 0};
+          const Vec3& p0 = piece.p[0];
+          for (size_t k = 1; k + 1 < m; ++k) {
+            const Vec3 &p1 = piece.p[k], &p2 = piece.p[k + 1];
+            const double area = 0.5 * normal.dot((p1 - p0).cross(p2 - p0));
+            const Vec3 u = p0 - yi, v = p1 - yi, w = p2 - yi;
+            c.mass += rho * area;
+            c.first += rho * area * (p0 + p1 + p2) / 3;
+            c.second +=
+                rho * area * (u.squaredNorm() + v.squaredNorm() + w.squaredNorm() + u.dot(v) + v.dot(w) + w.dot(u)) / 6;
+          }
+          for (size_t k = 0; k < m; ++k) {
+            const int slot = piece.label[k];
+            if (slot < 0) continue;
+            const double length = (piece.p[k + 1 == m ? 0 : k + 1] - piece.p[k]).norm();
+            if (!(length > 0)) continue;
+            const Vec3 d = yi - Vec3(sites.row(nbr[slot]));
+            const double speed = (d - d.dot(normal) * normal).norm();  // |P_T (y_i - y_j)|
+            if (speed > 0) out.slots.emplace_back(slot, rho * length / speed);
+            const int j = nbr[slot];
+            if (stamp[j] != 2 * f + attempt) {
+              stamp[j] = 2 * f + attempt;
+              queue.push_back(j);
+            }
+          }
+          c.slots_end = static_cast<int>(out.slots.size());
+          out.parts.push_back(c);
         }
-        c.slots_end = static_cast<int>(out.slots.size());
-        out.parts.push_back(c);
       }
     }
   }
