@@ -11,6 +11,8 @@ namespace brenier {
 ///    covering degree; crowded conformal maps transport from a spread start.
 /// 6: Wasserstein transports also stop on the dual gap (ShapeOptions::cost_tolerance); the
 ///    sphere's local Tutte steps never lengthen a vertex's longest edge.
-inline constexpr const char* kNumericsVersion = "6";
+/// 7: sphere shapes carry their exact-distance source measure and quantization cost; the
+///    surface transport starts its halving at four times the last accepted step.
+inline constexpr const char* kNumericsVersion = "7";
 
 }  // namespace brenier

@@ -89,6 +89,45 @@ std::string turn_words(const Shape& a, int angles) {
 
 }  // namespace
 
+namespace {
+
+// Runs a transport; a failure of the method on valid input (cells too small for doubles) is
+// reported as not converged, since both shapes were mapped and transported already.
+template <class Solve>
+bool guarded(TransportCost& out, Solve solve) {
+  try {
+    solve();
+    return true;
+  } catch (const Error& e) {
+    if (e.code() != ErrorCode::kInvalidArgument && e.code() != ErrorCode::kNotConverged) throw;
+    out.failure = e.what();
+    return false;
+  }
+}
+
+}  // namespace
+
+TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
+                                    const omt::Progress& progress, Eigen::VectorXd& h) {
+  if (!src.surface || dst.sphere_sites.rows() != dst.vertices)
+    invalid("'" + src.name + "' or '" + dst.name + "' has no sphere image for the exact distance");
+  omt::Points3 sites = dst.sphere_sites;
+  for (Eigen::Index i = 0; i < sites.rows(); ++i) sites.row(i) = sites.row(i).cwiseProduct(flip.transpose());
+  omt::OmtOptions o;
+  o.tolerance = dst.transport_tolerance;
+  o.progress = progress;
+  if (h.size()) o.initial_h = h;
+  TransportCost out;
+  omt::SurfaceOmtResult r;
+  if (!guarded(out, [&] { r = omt::solve_surface_omt(*src.surface, sites, dst.mass, o); })) return out;
+  out.iterations = r.iterations;
+  out.max_relative_error = r.max_relative_error;
+  out.converged = r.converged;
+  out.w2_squared = r.dual_value;  // stationary at the solution: its error is quadratic
+  h = r.h;
+  return out;
+}
+
 TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, const omt::Progress& progress,
                              Eigen::VectorXd& h) {
   const omt::Domain domain = src.density_domain ? *src.density_domain
@@ -107,15 +146,7 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, c
   o.initial_h = h.size() ? h : dst.h;
   TransportCost out;
   omt::OmtResult r;
-  try {
-    r = omt::solve_omt(domain, sites, dst.mass, o);
-  } catch (const Error& e) {
-    if (e.code() != ErrorCode::kInvalidArgument && e.code() != ErrorCode::kNotConverged) throw;
-    // Both shapes were mapped and transported already: a failure here is the method's
-    // limit on this pair (cells too small for doubles), reported as not converged.
-    out.failure = e.what();
-    return out;
-  }
+  if (!guarded(out, [&] { r = omt::solve_omt(domain, sites, dst.mass, o); })) return out;
   out.iterations = r.iterations;
   out.max_relative_error = r.max_relative_error;
   out.converged = r.converged;
@@ -155,10 +186,13 @@ namespace {
 // half-turns g about the frame's axes (sign choices of a right-handed frame). Turning B by g
 // makes its map g T_B g (g is its own inverse); on the band quadrature, g x_q is another
 // point x_{pi_g(q)}, so each candidate is a permutation of B's samples.
-PairResult omt_linear_sphere(const Shape& a, const Shape& b, int rings, int angles) {
+const Eigen::Vector3d kFlips[4] = {{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1, 1}};
+
+// (`frame`, if given, gets the half-turn chosen: an index of kFlips.)
+PairResult omt_linear_sphere(const Shape& a, const Shape& b, int rings, int angles, int* frame = nullptr) {
   PairResult out;
   out.distance = std::numeric_limits<double>::infinity();
-  const Eigen::Vector3d flips[4] = {{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1, 1}};
+  const Eigen::Vector3d* flips = kFlips;
   const char* names[4] = {"identity", "half-turn about the first axis", "half-turn about the second axis",
                           "half-turn about the third axis"};
   Quadrature quad;
@@ -175,6 +209,7 @@ PairResult omt_linear_sphere(const Shape& a, const Shape& b, int rings, int angl
     if (d < out.distance) {
       out.distance = d;
       out.normalization = std::string("Moebius centring, principal frames, ") + names[g] + " of the second shape";
+      if (frame) *frame = g;
     }
   }
   out.normalization += " (the best of the frame's four sign choices)";
@@ -196,9 +231,6 @@ PairResult omt_linear(const Shape& a, const Shape& b) {
 
 PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions& opt) {
   require_comparable(a, b);
-  if (a.sphere)
-    invalid("the exact Wasserstein distance on the sphere is not implemented yet (it needs power diagrams of the "
-            "chordal cost on the sphere); use --method omt-linear, or --domain disk --cut-hole");
   if (a.transport_tolerance != b.transport_tolerance || a.cost_tolerance != b.cost_tolerance)
     invalid("'" + a.name + "' and '" + b.name + "' were prepared with different transport tolerances");
   PairResult out;
@@ -224,6 +256,27 @@ PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions&
     raw = std::sqrt(std::max(0.0, c.w2_squared));
     return std::sqrt(std::max(0.0, c.w2_squared - (opt.debias ? dst.quantization : 0.0)));
   };
+  if (a.sphere) {
+    // On the sphere, the squared chordal cost between A's density (on the flat triangles of
+    // its sphere image) and B's vertices, B in the half-turn of its principal frame that the
+    // OMT-map distance finds best; backwards B's density to A's vertices under the same
+    // half-turn (it is its own inverse: W2(g mu_B, nu_A) = W2(mu_B, g nu_A)).
+    int g = 0;
+    const PairResult frame = omt_linear_sphere(a, b, a.rings, a.angles, &g);
+    TransportCost c[2];
+    Eigen::VectorXd h_a, h_b;
+    parallel_for(2, opt.parallel_directions ? 2 : 1, [&](int k) {
+      c[k] = k == 0 ? transport_cost_sphere(a, b, kFlips[g], progress, h_b)
+                    : transport_cost_sphere(b, a, kFlips[g], progress, h_a);
+    });
+    out.forward = add(c[0], b, out.raw_forward);
+    out.backward = add(c[1], a, out.raw_backward);
+    out.normalization = frame.normalization + ", chosen by the OMT-map distance; squared chordal cost, the density on "
+                                              "the flat triangles of the sphere image";
+    if (opt.debias) out.normalization += "; quantization bias removed";
+    out.distance = out.converged ? 0.5 * (out.forward + out.backward) : std::numeric_limits<double>::quiet_NaN();
+    return out;
+  }
   // d(A, R_theta B) both ways: the second direction turns A back instead (same thing, by the
   // rotation invariance of both measures' disk). The two transports are independent, and
   // each is bit-identical on any number of threads.

@@ -87,6 +87,11 @@ struct TransportCost {
 };
 TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, const omt::Progress& progress,
                              Eigen::VectorXd& h);
+/// On the sphere (squared chordal cost): src's density on its flat image triangles to dst's
+/// vertex images, each coordinate of the frame multiplied by flip (+-1: a half-turn of dst's
+/// principal frame), to dst's cell tolerance; the cost is the Kantorovich dual.
+TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
+                                    const omt::Progress& progress, Eigen::VectorXd& h);
 
 /// The conformal Wasserstein distance (Alg. 5, eq. 3.31): the source is the first shape's
 /// pushed-forward area density (piecewise constant on its conformal image), the sites the

@@ -68,6 +68,32 @@ std::string shape_key(const mesh::TriMesh& m, const ShapeOptions& opt) {
 
 namespace {
 
+void check_transport_tolerances(const ShapeOptions& opt) {
+  if (!(opt.transport_tolerance > 0) || !(opt.omt_tolerance > 0)) invalid("transport tolerances must be positive");
+  if (!(opt.cost_tolerance >= 0) || !std::isfinite(opt.cost_tolerance)) invalid("the cost tolerance must be 0 or positive");
+}
+
+// The quantization cost from the transport of a shape's density onto its own vertices.
+double quantization_cost(const Shape& s, const TransportCost& q) {
+  if (!q.converged) {
+    char buf[160];
+    std::snprintf(buf, sizeof buf, " (max relative cell-mass error %.2e after %d Newton iterations)",
+                  q.max_relative_error, q.iterations);
+    fail(ErrorCode::kNotConverged, s.name + ": the transport from its density to its own vertices did not converge" +
+                                       (q.failure.empty() ? std::string(buf) : " (" + q.failure + ")"));
+  }
+  return q.w2_squared;
+}
+
+void attach_surface(Shape& s) {
+  auto surface = std::make_shared<omt::SurfaceDensity>();
+  surface->vertices = s.sphere_sites;
+  surface->faces = s.tri;
+  surface->density = s.density;
+  surface->check();
+  s.surface = std::move(surface);
+}
+
 // Def. 2.24's OMT map on the sphere: the conformal sphere map (sec. 3.2.5) in its principal
 // frame, the transport from the sphere's uniform measure onto the vertex measure through
 // the stereographic plane from the frame's third axis (Domain::stereographic_sphere, the
@@ -143,6 +169,25 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
   const std::vector<int> cell = omt::PowerDiagrams(omt::Domain::stereographic_sphere(), sites, false).locate(r.h, plane);
   s.sphere_samples.resize(q.rows(), 3);
   for (Eigen::Index k = 0; k < q.rows(); ++k) s.sphere_samples.row(k) = X.row(cell[k]);
+  // The exact distance's source measure: the surface's area (4 pi in all) on the flat
+  // triangles of its sphere image, constant on each, and its quantization cost (the
+  // shape's density onto its own vertices, solved as a pair's direction is).
+  s.sphere_sites = X;
+  const Eigen::VectorXd area = mesh::face_areas(m) * (4 * M_PI / mesh::total_area(m));
+  s.density.resize(m.num_faces());
+  for (int f = 0; f < m.num_faces(); ++f) {
+    const Eigen::Vector3d a = X.row(m.F(f, 0)), b = X.row(m.F(f, 1)), d = X.row(m.F(f, 2));
+    const double image = 0.5 * (b - a).cross(d - a).norm();
+    if (!(image > 0))
+      fail(ErrorCode::kNotConverged, s.name + ": face " + std::to_string(f) + " has no area in the sphere image");
+    s.density[f] = area[f] / image;
+  }
+  attach_surface(s);
+  check_transport_tolerances(opt);
+  s.transport_tolerance = opt.transport_tolerance;
+  s.cost_tolerance = opt.cost_tolerance;
+  Eigen::VectorXd start;
+  s.quantization = quantization_cost(s, transport_cost_sphere(s, s, Eigen::Vector3d::Ones(), progress, start));
   return s;
 }
 
@@ -207,20 +252,10 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
   // The quantization cost (WassersteinOptions::debias), solved exactly as a pair's
   // direction with this shape on both sides is (same start, same tolerance).
   Eigen::VectorXd start;
-  if (!(opt.transport_tolerance > 0) || !(opt.omt_tolerance > 0)) invalid("transport tolerances must be positive");
-  if (!(opt.cost_tolerance >= 0) || !std::isfinite(opt.cost_tolerance)) invalid("the cost tolerance must be 0 or positive");
+  check_transport_tolerances(opt);
   s.transport_tolerance = opt.transport_tolerance;
   s.cost_tolerance = opt.cost_tolerance;
-  const TransportCost q = transport_cost(s, s, 0.0, progress, start);
-  if (!q.converged)
-  {
-    char buf[160];
-    std::snprintf(buf, sizeof buf, " (max relative cell-mass error %.2e after %d Newton iterations)",
-                  q.max_relative_error, q.iterations);
-    fail(ErrorCode::kNotConverged, name + ": the transport from its density to its own vertices did not converge" +
-                                       (q.failure.empty() ? std::string(buf) : " (" + q.failure + ")"));
-  }
-  s.quantization = q.w2_squared;
+  s.quantization = quantization_cost(s, transport_cost(s, s, 0.0, progress, start));
   const int R = opt.quadrature.rings, A = opt.quadrature.angles;
   s.samples.resize(R, A);
   s.spectrum.resize(R, A);
@@ -242,7 +277,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
 
 namespace {
 
-constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '5'};
+constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '6'};
 
 struct Writer {
   std::ostream& os;
@@ -323,6 +358,7 @@ void save_shape(const Shape& s, const std::string& path) {
     w.mat(s.samples);
     w.mat(s.spectrum);
     w.mat(s.sphere_samples);
+    w.mat(s.sphere_sites);
     os.write(kMagic, sizeof kMagic);  // a whole file ends as it begins
     if (!os.flush()) fail(ErrorCode::kResourceExhausted, "cannot write the cache file " + tmp);
   }
@@ -363,9 +399,10 @@ bool load_shape(const std::string& path, Shape& out) {
   r.mat(s.samples);
   r.mat(s.spectrum);
   r.mat(s.sphere_samples);
+  r.mat(s.sphere_sites);
   if (!r.ok || !is.read(magic, 8) || !std::equal(magic, magic + 8, kMagic)) return false;
   if (s.sites.rows() != s.vertices || s.mass.size() != s.vertices || s.tri.rows() != s.faces ||
-      (!s.sphere && s.density.size() != s.faces) || s.h.size() != s.vertices || s.samples.rows() != s.spectrum.rows() ||
+      s.density.size() != s.faces || (s.sphere && s.sphere_sites.rows() != s.vertices) || s.h.size() != s.vertices || s.samples.rows() != s.spectrum.rows() ||
       s.samples.cols() != s.spectrum.cols())
     return false;
   const long long samples = static_cast<long long>(s.rings) * s.angles;
@@ -373,13 +410,14 @@ bool load_shape(const std::string& path, Shape& out) {
       (s.sphere ? s.sphere_samples.rows() != samples : s.samples.rows() != s.rings || s.samples.cols() != s.angles))
     return false;
   if (s.faces > 0 && (s.tri.minCoeff() < 0 || s.tri.maxCoeff() >= s.vertices)) return false;
-  if (!s.sphere) {
-    try {
+  try {
+    if (s.sphere)
+      attach_surface(s);
+    else
       s.density_domain =
           std::make_shared<const omt::Domain>(omt::Domain::piecewise_constant(s.sites, s.tri, s.density));
-    } catch (const Error&) {
-      return false;  // a damaged file: prepared anew
-    }
+  } catch (const Error&) {
+    return false;  // a damaged file: prepared anew
   }
   out = std::move(s);
   return true;

@@ -13,6 +13,7 @@
 #include "mesh/mesh.hpp"
 #include "omt/omt.hpp"
 #include "omt/power_diagram.hpp"
+#include "omt/surface_cells.hpp"
 
 namespace brenier::distance {
 
@@ -80,6 +81,12 @@ struct Shape {
   // piecewise_constant of sites, tri and density: its hull, bucket grid and adjacency),
   // built once by prepare_shape and load_shape instead of once per pair and direction.
   std::shared_ptr<const omt::Domain> density_domain;
+  // Sphere shapes: the conformal sphere map's vertices in the shape's principal frame (unit
+  // vectors), `density` per face the surface area (total 4 pi) over the flat image
+  // triangle's, and that density as the source measure of the exact distance (squared
+  // chordal cost; omt/surface_cells.hpp), built by prepare_shape and load_shape.
+  omt::Points3 sphere_sites;
+  std::shared_ptr<const omt::SurfaceDensity> surface;
   // The OMT map of Def. 2.24 from the uniform disk onto (sites, mass) (Alg. 2): heights h
   // and, at each quadrature point, the site of its cell, as complex numbers (ring by ring).
   Eigen::VectorXd h;

@@ -14,9 +14,6 @@ namespace brenier::jobs {
 distance::ShapeOptions ShapeRequest::shape_options() const {
   if (domain != "disk" && domain != "sphere") invalid("unknown domain '" + domain + "' (disk or sphere)");
   distance::parse_method(method);
-  if (domain == "sphere" && method == "wasserstein")
-    invalid("the exact Wasserstein distance on the sphere is not implemented yet; use the omt-linear method, or "
-            "the disk domain with cut_hole");
   if (domain == "sphere" && cut_hole) invalid("cut_hole applies to the disk domain");
   if (!(tolerance > 0) || !std::isfinite(tolerance)) invalid("the tolerance must be a positive number");
   distance::ShapeOptions o;

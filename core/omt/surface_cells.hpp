@@ -10,8 +10,8 @@
 // c(x, y) = |x - y|^2 with dual weights |y_i|^2 + 2 h_i. Every piece W_i ∩ T of a flat
 // triangle T is a convex polygon of T's plane, integrated exactly.
 //
-// Not yet used by the distances: the Newton solver on these cells and the distance on the
-// sphere come next (bench/RESULTS.md, issue 5, session 11).
+// Used by the exact Wasserstein distance on the sphere (distance/distance.hpp,
+// transport_cost_sphere).
 #pragma once
 
 #include <Eigen/Core>
@@ -72,7 +72,7 @@ struct SurfaceOmtResult {
 /// target and the start's smallest cell), one set of surface cells per trial step, each
 /// Newton system factored afresh (CHOLMOD). options.tolerance: max relative cell-mass
 /// error; options.initial_h: the start (default 0: for sites on the unit sphere, the
-/// spherical Voronoi diagram). Not yet used by the distances.
+/// spherical Voronoi diagram).
 SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& nu,
                                    const OmtOptions& options = {});
 

@@ -31,7 +31,8 @@ struct ShapeFlags {
     jobs::ShapeRequest& r = request;
     cmd->add_option("--method", r.method, "wasserstein (exact, Alg. 5) or omt-linear (Def. 2.24 as an embedding)")
         ->check(CLI::IsMember({"wasserstein", "omt-linear"}));
-    cmd->add_option("--domain", r.domain, "disk (closed genus-0 surfaces with --cut-hole)")
+    cmd->add_option("--domain", r.domain, "disk (topological disks; closed genus-0 surfaces with --cut-hole) or sphere (closed "
+                    "genus-0 surfaces; wasserstein with the squared chordal cost)")
         ->check(CLI::IsMember({"disk", "sphere"}));
     cmd->add_flag("--cut-hole", r.cut_hole, "open closed genus-0 meshes into disks by removing one vertex's star");
     cmd->add_option("--tolerance", r.tolerance, "wasserstein: max relative cell-mass error of each transport (default 1e-3; the distance is read from "
@@ -39,7 +40,7 @@ struct ShapeFlags {
         ->check(CLI::PositiveNumber);
     cmd->add_option("--cost-tolerance", r.cost_tolerance,
                     "wasserstein: or stop each transport once its cost is known to this relative accuracy (the "
-                    "Newton decrement; default 1e-6, 0: off)")
+                    "Newton decrement; default 1e-6, 0: off; the disk only)")
         ->check(CLI::Range(0.0, 1.0));
     cmd->add_flag("--refine-rotation", r.refine_rotation,
                   "wasserstein without markers: refine the rotation beyond the quadrature's step by exact "
@@ -141,6 +142,10 @@ std::map<std::string, std::pair<int, int>> read_markers(const std::string& path)
 
 int run_matrix(const MatrixCommand& o) {
   const auto t0 = std::chrono::steady_clock::now();
+  // Before hours of work, not after: the output's folder must exist.
+  const std::filesystem::path folder = std::filesystem::path(o.output).parent_path();
+  if (!folder.empty() && !std::filesystem::is_directory(folder))
+    invalid("cannot write " + o.output + ": the folder " + folder.string() + " does not exist");
   distance::MatrixOptions mo;
   mo.method = distance::parse_method(o.flags.request.method);
   mo.wasserstein = o.flags.request.wasserstein();
