@@ -4,7 +4,8 @@ discrete measures, distance matrices over the synthetic dataset with both method
 the time grows with the number of shapes. Prints one line per figure (and JSON with --json).
 
 Usage: bench_distance.py BRENIER_COMPUTE WORK_DIR [--pair-sizes 5000,20000] [--pot-max 5000]
-                         [--matrix 100] [--scaling 10,20,40] [--exact-matrix] [--json]
+                         [--matrix 100] [--scaling 10,20,40] [--exact-matrix]
+                         [--sphere-pairs A.off:B.off,...] [--json]
 The dataset comes from bench/distance_dataset.py (height-field disks, 10 classes).
 """
 import argparse
@@ -84,6 +85,65 @@ def pot_pair(exe, work, a, b, turn):
     return seconds, w, mb
 
 
+POT_SPHERE_PROBE = """
+import sys, time, resource, numpy as np, ot
+d = np.load(sys.argv[1])
+out = []
+for g in [(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)]:
+    t0 = time.time()
+    w = ot.emd2(d['ma'], d['mb'], ot.dist(d['xa'], d['xb'] * np.array(g)), numItermax=10**8)
+    out += [time.time() - t0, np.sqrt(4 * np.pi * w)]
+print(*out, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
+"""
+
+
+def principal_frame(Y, m):
+    """The vertices' sphere images in the principal frame of their area, as the distance puts
+    them (up to the frame's sign choices, which only permute its four half-turns)."""
+    w, E = np.linalg.eigh((Y * m[:, None]).T @ Y)
+    a, b = E[:, 2], E[:, 1]
+    return Y @ np.column_stack([a, b, np.cross(a, b)])
+
+
+def pot_sphere_pair(exe, work, a, b):
+    """POT's exact EMD, squared chordal cost, between the vertex measures of the same conformal
+    sphere maps, at each of the frame's four half-turns: (seconds per EMD, the four W2, MB)."""
+    xs, ms = [], []
+    for p in (a, b):
+        out = os.path.join(work, "bench-sphere-map.obj")
+        subprocess.run([exe, "map", p, "--domain", "sphere", "--method", "conformal", "-o", out], check=True,
+                       capture_output=True)
+        ms.append(vertex_masses(*read_off(p)))
+        xs.append(principal_frame(np.array(read_obj(out)[0]), ms[-1]))
+    npz = os.path.join(work, "pot-sphere-input.npz")
+    np.savez(npz, xa=xs[0], xb=xs[1], ma=ms[0], mb=ms[1])
+    p = subprocess.run([sys.executable, "-c", POT_SPHERE_PROBE, npz], capture_output=True, text=True, check=True)
+    v = [float(x) for x in p.stdout.split()]
+    return sum(v[0:8:2]) / 4, v[1:8:2], v[8]
+
+
+def sphere_pairs(o, results):
+    """Exact distances on the sphere between given closed genus-0 meshes, beside POT."""
+    for pair in [x for x in o.sphere_pairs.split(",") if x]:
+        a, b = pair.split(":")
+        out, wall, mb = measured([o.exe, "distance", a, b, "--domain", "sphere", "--json"])
+        j = json.loads(out)
+        n = [s["vertices"] for s in j["shapes"]]
+        row = {"a": a, "b": b, "vertices": n, "distance": j["distance"], "pair_seconds": j["seconds"]["pair"],
+               "shapes_seconds": j["seconds"]["shapes"], "total_seconds": wall, "peak_mb": mb,
+               "newton_iterations": j.get("newton_iterations")}
+        line = (f"sphere pair {os.path.basename(a)} ({n[0]}) - {os.path.basename(b)} ({n[1]}): d = {j['distance']:.5f} "
+                f"(eq. 3.31 {0.5 * (j['raw_forward'] + j['raw_backward']):.5f}), {j.get('newton_iterations')} Newton "
+                f"iterations, pair {j['seconds']['pair']:.2f} s, end to end {wall:.2f} s, peak {mb:.0f} MB")
+        if max(n) <= o.pot_max:
+            ps, pw, pmb = pot_sphere_pair(o.exe, o.work, a, b)
+            row.update({"pot_seconds_per_emd": ps, "pot_distances": pw, "pot_peak_mb": pmb})
+            line += (f" | POT exact EMD (chordal, the frame's four half-turns): {min(pw):.5f}..{max(pw):.5f}, "
+                     f"{ps:.2f} s and {pmb:.0f} MB each")
+        results["sphere_pairs"].append(row)
+        print(line, flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("exe")
@@ -93,10 +153,13 @@ def main():
     ap.add_argument("--matrix", type=int, default=100, help="shapes of the matrix benchmark (0: none)")
     ap.add_argument("--scaling", default="10,20,40", help="matrix sizes for the growth with N")
     ap.add_argument("--exact-matrix", action="store_true", help="also the Wasserstein matrix of --matrix shapes")
+    ap.add_argument("--sphere-pairs", default="",
+                    help="A.off:B.off,... closed genus-0 meshes for the exact distance on the sphere")
     ap.add_argument("--json", action="store_true")
     o = ap.parse_args()
     os.makedirs(o.work, exist_ok=True)
-    results = {"pairs": [], "matrices": []}
+    results = {"pairs": [], "matrices": [], "sphere_pairs": []}
+    sphere_pairs(o, results)
 
     # One pair per size: two shapes of different classes.
     for n in [int(x) for x in o.pair_sizes.split(",") if x]:

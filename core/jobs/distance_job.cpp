@@ -15,6 +15,8 @@ distance::ShapeOptions ShapeRequest::shape_options() const {
   if (domain != "disk" && domain != "sphere") invalid("unknown domain '" + domain + "' (disk or sphere)");
   distance::parse_method(method);
   if (domain == "sphere" && cut_hole) invalid("cut_hole applies to the disk domain");
+  if (domain == "sphere" && refine_rotation)
+    invalid("refine_rotation applies to the disk domain (on the sphere the frame's half-turns are compared)");
   if (!(tolerance > 0) || !std::isfinite(tolerance)) invalid("the tolerance must be a positive number");
   distance::ShapeOptions o;
   o.sphere = domain == "sphere";

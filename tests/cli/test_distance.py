@@ -297,6 +297,8 @@ j = distance(mesh("blobby"), os.path.join(work, "blobby-moved.off"), "--domain",
 check(j and j["converged"] and j["distance"] < 1e-3 and "chordal" in j["normalization"],
       f"sphere: exact d(A, rigidly moved A) = {j and j['distance']}, {j and j['normalization']}")
 refused(["distance", mesh("retinal"), mesh("nefertiti"), "--domain", "sphere"], ["nefertiti", "closed genus-0"])
+refused(["distance", mesh("retinal"), mesh("blobby"), "--domain", "sphere", "--refine-rotation"],
+        ["refine_rotation", "disk"])
 
 
 # ---- the sphere's exact distance against POT's exact EMD, squared chordal cost -------------
