@@ -12,7 +12,8 @@ namespace brenier {
 /// 6: Wasserstein transports also stop on the dual gap (ShapeOptions::cost_tolerance); the
 ///    sphere's local Tutte steps never lengthen a vertex's longest edge.
 /// 7: sphere shapes carry their exact-distance source measure and quantization cost; the
-///    surface transport starts its halving at four times the last accepted step.
+///    surface transport starts its halving at four times the last accepted step and stops
+///    on the dual gap too.
 inline constexpr const char* kNumericsVersion = "7";
 
 }  // namespace brenier

@@ -268,6 +268,13 @@ SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3&
   llt.setMode(Eigen::CholmodSimplicialLLt);
   llt.cholmod().print = 0;
   double last_t = 1;
+  bool gap_closed = false;
+  // The Kantorovich dual at h: sum_i int_{W_i} |x - y_i|^2 - sum_i w_i (m_i - nu_i).
+  auto dual_at = [&](const Eigen::VectorXd& heights, const SurfaceCells& cells) {
+    Eigen::VectorXd w(n);
+    for (int i = 0; i < n; ++i) w[i] = sites.row(i).squaredNorm() + 2 * heights[i];
+    return cells.second_moment.sum() - w.dot(cells.mass - nu);
+  };
   for (r.iterations = 0; r.iterations < opt.max_iterations && r.max_relative_error > opt.tolerance; ++r.iterations) {
     // The Jacobian of the masses (eq. 3.28 on the surface): the weighted graph Laplacian of
     // the cells' sides, dm_i/dh_j = -w_ij, dm_i/dh_i = sum_j w_ij; without the held height.
@@ -296,6 +303,17 @@ SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3&
     Eigen::VectorXd dh = Eigen::VectorXd::Zero(n);
     for (int i = 0; i < n; ++i)
       if (i != held) dh[i] = d[slot(i)];
+    // The dual gap test (OmtOptions::dual_gap_tolerance), as on the disk: the dual D(h) is
+    // concave with gradient -2 g and Hessian -2 H, so the Newton step's predicted rise of D
+    // to its maximum is -g . dh; once that is within the tolerance of D, the cost is known.
+    if (opt.dual_gap_tolerance > 0 && r.max_relative_error <= 0.25) {
+      const double rise = -g.dot(dh), value = dual_at(h, r.cells);
+      if (rise >= 0 && rise <= opt.dual_gap_tolerance * std::abs(value)) {
+        r.dual_rise = rise;
+        gap_closed = true;
+        break;
+      }
+    }
     const double gnorm = relative_norm(g);
     bool accepted = false;
     // The halving starts at four times the last accepted step (at most 1): where the steps
@@ -322,11 +340,9 @@ SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3&
       break;  // round-off floor: no step improves any more
     }
   }
-  Eigen::VectorXd w(n);
-  for (int i = 0; i < n; ++i) w[i] = sites.row(i).squaredNorm() + 2 * h[i];
-  r.dual_value = r.cells.second_moment.sum() - w.dot(r.cells.mass - nu);
+  r.dual_value = dual_at(h, r.cells);
   r.h = h.array() - h.mean();
-  r.converged = r.max_relative_error <= opt.tolerance;
+  r.converged = r.max_relative_error <= opt.tolerance || gap_closed;
   return r;
 }
 

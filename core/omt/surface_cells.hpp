@@ -64,6 +64,9 @@ struct SurfaceOmtResult {
   /// The Kantorovich dual at h: sum_i ∫_{W_i} |x - y_i|^2 dmu - sum_i w_i (m_i - nu_i), w_i =
   /// |y_i|^2 + 2 h_i; W2^2 at the solution, a lower bound of it anywhere.
   double dual_value = 0;
+  /// When the solve stopped by OmtOptions::dual_gap_tolerance: the Newton step's predicted
+  /// rise of the dual to its maximum (dual_value + dual_rise estimates W2^2 to third order).
+  double dual_rise = 0;
 };
 
 /// Semi-discrete transport from the surface's density to the sites with masses nu (scaled to
@@ -71,8 +74,8 @@ struct SurfaceOmtResult {
 /// Alg. 2 with Kitagawa-Merigot-Thibert damping (every cell keeps half the smaller of its
 /// target and the start's smallest cell), one set of surface cells per trial step, each
 /// Newton system factored afresh (CHOLMOD). options.tolerance: max relative cell-mass
-/// error; options.initial_h: the start (default 0: for sites on the unit sphere, the
-/// spherical Voronoi diagram).
+/// error, or options.dual_gap_tolerance as in solve_omt; options.initial_h: the start
+/// (default 0: for sites on the unit sphere, the spherical Voronoi diagram).
 SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& nu,
                                    const OmtOptions& options = {});
 

@@ -974,6 +974,32 @@ TEST(SurfaceOmt, RecoversTheHeightsThatMadeTheTargets) {
   EXPECT_NEAR(r.dual_value, at_truth.second_moment.sum(), 1e-9 * at_truth.second_moment.sum());
 }
 
+TEST(SurfaceOmt, TheDualGapTestStopsEarlyWithTheSameCost) {
+  // Stopped by the Newton decrement: no more iterations than the cells-to-1e-9 solve, its
+  // dual plus the predicted rise within the tolerance of that solve's cost, and the gap it
+  // reports within the tolerance too.
+  const omt::SurfaceDensity S = icosphere_density(3, 9);
+  const mesh::TriMesh sites = mesh::make_icosphere(2);
+  const int n = sites.num_vertices();
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> U(0.5, 2.0);
+  Eigen::VectorXd nu(n);
+  for (int i = 0; i < n; ++i) nu[i] = U(rng);
+  omt::OmtOptions exact;
+  exact.tolerance = 1e-9;
+  const omt::SurfaceOmtResult full = omt::solve_surface_omt(S, sites.V, nu, exact);
+  ASSERT_TRUE(full.converged);
+  omt::OmtOptions gap = exact;
+  gap.dual_gap_tolerance = 1e-6;
+  const omt::SurfaceOmtResult quick = omt::solve_surface_omt(S, sites.V, nu, gap);
+  ASSERT_TRUE(quick.converged);
+  EXPECT_GT(quick.dual_rise, 0.0);  // it did stop by the test
+  EXPECT_LE(quick.dual_rise, 1e-6 * std::abs(quick.dual_value));
+  EXPECT_LT(quick.iterations, full.iterations);
+  EXPECT_NEAR(quick.dual_value + quick.dual_rise, full.dual_value, 1e-6 * full.dual_value);
+  EXPECT_LE(quick.max_relative_error, 0.25);
+}
+
 TEST(SurfaceOmt, SymmetricSitesWithEqualMassesGetSymmetricHeights) {
   // The 42 vertices of a once-subdivided icosahedron, equal masses, the uniform density on
   // a thrice-subdivided one: the icosahedral rotations permute the 12 five-valent sites

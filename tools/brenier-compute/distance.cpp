@@ -40,7 +40,7 @@ struct ShapeFlags {
         ->check(CLI::PositiveNumber);
     cmd->add_option("--cost-tolerance", r.cost_tolerance,
                     "wasserstein: or stop each transport once its cost is known to this relative accuracy (the "
-                    "Newton decrement; default 1e-6, 0: off; the disk only)")
+                    "Newton decrement; default 1e-6, 0: off)")
         ->check(CLI::Range(0.0, 1.0));
     cmd->add_flag("--refine-rotation", r.refine_rotation,
                   "wasserstein without markers: refine the rotation beyond the quadrature's step by exact "
