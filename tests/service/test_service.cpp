@@ -234,6 +234,9 @@ TEST(Service, DistanceAndMatrixRoundTripsGiveTheEnginesAnswer) {
   pb::SubmitJobRequest disk_on_sphere = rs;
   disk_on_sphere.mutable_distance()->set_b(a);
   EXPECT_EQ(code_of([&] { c.submit(disk_on_sphere); }), grpc::StatusCode::INVALID_ARGUMENT);
+  pb::SubmitJobRequest turned = rs;  // turns are a disk's; the sphere compares its frame's half-turns
+  turned.mutable_distance()->mutable_wasserstein()->set_refine_rotation(true);
+  EXPECT_EQ(code_of([&] { c.submit(turned); }), grpc::StatusCode::INVALID_ARGUMENT);
 
   // A matrix (both methods): symmetric, zero diagonal, names, and the engine's values.
   for (pb::DistanceMethod method : {pb::OMT_LINEAR, pb::WASSERSTEIN}) {
