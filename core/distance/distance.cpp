@@ -105,6 +105,32 @@ bool guarded(TransportCost& out, Solve solve) {
   }
 }
 
+// One direction's transport onto dst's vertices, to dst's tolerances (`o` brings the rest):
+// `solve(o)` gives an omt::OmtResult or omt::SurfaceOmtResult. The cost is the Kantorovich
+// dual at the heights (the OMT energy of eq. 3.25 up to sign and constants):
+//   sum_i int_{W_i} |x - y_i|^2 dmu - sum_i w_i (mu(W_i) - nu_i),  w_i = |y_i|^2 + 2 h_i.
+// It equals eq. 3.31 at the solution and is stationary there, so its error is quadratic in
+// the heights' error where the primal sum's is linear (measured on a 5K pair: 6e-11 relative
+// with the cells 1e-2 off their masses, where eq. 3.31 was 2e-6 off). Where the cost test
+// stopped the solve, the Newton step's predicted rise is added (third order).
+template <class Solve>
+TransportCost transport_to(const Shape& dst, const omt::Progress& progress, omt::OmtOptions o, Eigen::VectorXd& h,
+                           Solve solve) {
+  o.tolerance = dst.transport_tolerance;
+  o.dual_gap_tolerance = dst.cost_tolerance;
+  o.progress = progress;
+  TransportCost out;
+  decltype(solve(o)) r;
+  if (!guarded(out, [&] { r = solve(o); })) return out;
+  out.iterations = r.iterations;
+  out.max_relative_error = r.max_relative_error;
+  out.converged = r.converged;
+  out.w2_squared = r.dual_value + r.dual_rise;
+  if (r.dual_rise > 0) out.relative_cost_gap = r.dual_rise / std::abs(r.dual_value);
+  h = r.h;
+  return out;
+}
+
 }  // namespace
 
 TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
@@ -114,22 +140,9 @@ TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Ei
   omt::Points3 sites = dst.sphere_sites;
   for (Eigen::Index i = 0; i < sites.rows(); ++i) sites.row(i) = sites.row(i).cwiseProduct(flip.transpose());
   omt::OmtOptions o;
-  o.tolerance = dst.transport_tolerance;
-  o.dual_gap_tolerance = dst.cost_tolerance;
-  o.progress = progress;
   if (h.size()) o.initial_h = h;
-  TransportCost out;
-  omt::SurfaceOmtResult r;
-  if (!guarded(out, [&] { r = omt::solve_surface_omt(*src.surface, sites, dst.mass, o); })) return out;
-  out.iterations = r.iterations;
-  out.max_relative_error = r.max_relative_error;
-  out.converged = r.converged;
-  // The dual, stationary at the solution (its error quadratic), plus the predicted rise
-  // where the cost test stopped the solve, as on the disk.
-  out.w2_squared = r.dual_value + r.dual_rise;
-  if (r.dual_rise > 0) out.relative_cost_gap = r.dual_rise / std::abs(r.dual_value);
-  h = r.h;
-  return out;
+  return transport_to(dst, progress, o, h,
+                      [&](const omt::OmtOptions& oo) { return omt::solve_surface_omt(*src.surface, sites, dst.mass, oo); });
 }
 
 TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, const omt::Progress& progress,
@@ -141,29 +154,12 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, c
   sites.col(0) = c * dst.sites.col(0) - s * dst.sites.col(1);
   sites.col(1) = s * dst.sites.col(0) + c * dst.sites.col(1);
   omt::OmtOptions o;
-  o.tolerance = dst.transport_tolerance;
-  o.dual_gap_tolerance = dst.cost_tolerance;
-  o.progress = progress;
   // dst's heights for the uniform disk: the cells start at the right areas, only the
   // density differs (measured, source three_peaks to mushroom's sites: 24 Newton iterations
   // where Alg. 2's Voronoi start took 52).
   o.initial_h = h.size() ? h : dst.h;
-  TransportCost out;
-  omt::OmtResult r;
-  if (!guarded(out, [&] { r = omt::solve_omt(domain, sites, dst.mass, o); })) return out;
-  out.iterations = r.iterations;
-  out.max_relative_error = r.max_relative_error;
-  out.converged = r.converged;
-  // The Kantorovich dual value at h (the OMT energy of eq. 3.25 up to sign and constants):
-  //   sum_i int_{W_i} |x - y_i|^2 dmu - sum_i w_i (mu(W_i) - nu_i),  w_i = |y_i|^2 + 2 h_i.
-  // It equals eq. 3.31 at the solution and is stationary there, so its error is quadratic
-  // in the heights' error where the primal sum's is linear (measured on a 5K pair: 6e-11
-  // relative with the cells 1e-2 off their masses, where eq. 3.31 was 2e-6 off). Where the
-  // cost test stopped the solve, the Newton step's predicted rise is added (third order).
-  out.w2_squared = r.dual_value + r.dual_rise;
-  if (r.dual_rise > 0) out.relative_cost_gap = r.dual_rise / std::abs(r.dual_value);
-  h = r.h;
-  return out;
+  return transport_to(dst, progress, o, h,
+                      [&](const omt::OmtOptions& oo) { return omt::solve_omt(domain, sites, dst.mass, oo); });
 }
 
 
@@ -196,7 +192,6 @@ const Eigen::Vector3d kFlips[4] = {{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1,
 PairResult omt_linear_sphere(const Shape& a, const Shape& b, int rings, int angles, int* frame = nullptr) {
   PairResult out;
   out.distance = std::numeric_limits<double>::infinity();
-  const Eigen::Vector3d* flips = kFlips;
   const char* names[4] = {"identity", "half-turn about the first axis", "half-turn about the second axis",
                           "half-turn about the third axis"};
   Quadrature quad;
@@ -207,7 +202,7 @@ PairResult omt_linear_sphere(const Shape& a, const Shape& b, int rings, int angl
     double sum = 0;
     for (int q = 0; q < rings * angles; ++q) {
       const Eigen::Vector3d ta = a.sphere_samples.row(q).transpose(), tb = b.sphere_samples.row(to[q]).transpose();
-      sum += (ta - flips[g].cwiseProduct(tb)).squaredNorm();
+      sum += (ta - kFlips[g].cwiseProduct(tb)).squaredNorm();
     }
     const double d = std::sqrt(sum * 4 * M_PI / (static_cast<double>(rings) * angles));
     if (d < out.distance) {

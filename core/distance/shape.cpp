@@ -174,18 +174,12 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
   // shape's density onto its own vertices, solved as a pair's direction is).
   s.sphere_sites = X;
   const Eigen::VectorXd area = mesh::face_areas(m) * (4 * M_PI / mesh::total_area(m));
-  s.density.resize(m.num_faces());
-  for (int f = 0; f < m.num_faces(); ++f) {
-    const Eigen::Vector3d a = X.row(m.F(f, 0)), b = X.row(m.F(f, 1)), d = X.row(m.F(f, 2));
-    const double image = 0.5 * (b - a).cross(d - a).norm();
-    if (!(image > 0))
+  const Eigen::VectorXd image = mesh::face_areas(m.F, X);
+  for (int f = 0; f < m.num_faces(); ++f)
+    if (!(image[f] > 0))
       fail(ErrorCode::kNotConverged, s.name + ": face " + std::to_string(f) + " has no area in the sphere image");
-    s.density[f] = area[f] / image;
-  }
+  s.density = area.cwiseQuotient(image);
   attach_surface(s);
-  check_transport_tolerances(opt);
-  s.transport_tolerance = opt.transport_tolerance;
-  s.cost_tolerance = opt.cost_tolerance;
   Eigen::VectorXd start;
   s.quantization = quantization_cost(s, transport_cost_sphere(s, s, Eigen::Vector3d::Ones(), progress, start));
   return s;
@@ -206,6 +200,9 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
   s.faces = m.num_faces();
   s.rings = opt.quadrature.rings;
   s.angles = opt.quadrature.angles;
+  check_transport_tolerances(opt);
+  s.transport_tolerance = opt.transport_tolerance;
+  s.cost_tolerance = opt.cost_tolerance;
   if (opt.sphere) return prepare_sphere(m, opt, std::move(s), progress);
   // Alg. 5 step 2: the conformal map onto the unit disk, Moebius-normalized (Thm 2.13).
   conformal::ConformalOptions copt;
@@ -252,9 +249,6 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
   // The quantization cost (WassersteinOptions::debias), solved exactly as a pair's
   // direction with this shape on both sides is (same start, same tolerance).
   Eigen::VectorXd start;
-  check_transport_tolerances(opt);
-  s.transport_tolerance = opt.transport_tolerance;
-  s.cost_tolerance = opt.cost_tolerance;
   s.quantization = quantization_cost(s, transport_cost(s, s, 0.0, progress, start));
   const int R = opt.quadrature.rings, A = opt.quadrature.angles;
   s.samples.resize(R, A);
@@ -402,8 +396,8 @@ bool load_shape(const std::string& path, Shape& out) {
   r.mat(s.sphere_sites);
   if (!r.ok || !is.read(magic, 8) || !std::equal(magic, magic + 8, kMagic)) return false;
   if (s.sites.rows() != s.vertices || s.mass.size() != s.vertices || s.tri.rows() != s.faces ||
-      s.density.size() != s.faces || (s.sphere && s.sphere_sites.rows() != s.vertices) || s.h.size() != s.vertices || s.samples.rows() != s.spectrum.rows() ||
-      s.samples.cols() != s.spectrum.cols())
+      s.density.size() != s.faces || (s.sphere && s.sphere_sites.rows() != s.vertices) || s.h.size() != s.vertices ||
+      s.samples.rows() != s.spectrum.rows() || s.samples.cols() != s.spectrum.cols())
     return false;
   const long long samples = static_cast<long long>(s.rings) * s.angles;
   if (s.rings < 1 || s.angles < 4 ||
