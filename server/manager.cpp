@@ -1,4 +1,5 @@
 #include "manager.hpp"
+#include "test_hooks.hpp"
 
 #include <google/protobuf/util/time_util.h>
 #include <spdlog/spdlog.h>
@@ -228,8 +229,7 @@ pb::Mesh Manager::add_mesh(const std::string& tenant, const pb::UploadMeshReques
   m.set_genus(t.genus);
   *m.mutable_created() = TimeUtil::GetCurrentTime();
   for (const auto& p : cm.report.problems) m.add_warnings(p.message);
-  store_.put_blob(Store::Blob::kMesh, bytes, h.sha256());
-  return store_.put_mesh(tenant, m);
+  return store_.put_mesh_with_blob(tenant, m, bytes);
 }
 
 pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& request) {
@@ -290,56 +290,81 @@ pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& r
   job.set_stage("queued");
   *job.mutable_created() = TimeUtil::GetCurrentTime();
   *job.mutable_spec() = request;
-  bool inserted = false;
-  pb::Job stored = store_.insert_job(tenant, job, inserted);
-  if (!inserted) {
-    if (stored.spec().SerializeAsString() != request.SerializeAsString())
-      invalid("request_id '" + request.request_id() + "' was used for another job spec (job " + stored.id() + ")");
-    return stored;
-  }
-  auto l = std::make_shared<LiveJob>();
-  l->job = stored;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    live_[stored.id()] = l;
-  }
-  if (!scheduler_->try_enqueue(stored.id())) {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      live_.erase(stored.id());
-    }
-    store_.delete_job(stored.id());
+  // The queue's place is taken before the row is written, so a refused submission leaves no
+  // row behind that a concurrent resubmission with the same request_id could be handed.
+  // The live entry goes in first too: whoever sees the row (a resubmission, a watcher) finds
+  // the job live.
+  Scheduler::Reservation place = scheduler_->try_reserve();
+  if (!place)
     fail(ErrorCode::kResourceExhausted, "the job queue is full (" + std::to_string(options_.queue) +
                                             " jobs waiting); try again later");
+  auto l = std::make_shared<LiveJob>();
+  l->job = job;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    live_[job.id()] = l;
   }
+  bool inserted = false;
+  pb::Job stored;
+  try {
+    stored = store_.insert_job(tenant, job, inserted);
+  } catch (...) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    live_.erase(job.id());
+    throw;
+  }
+  if (!inserted) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      live_.erase(job.id());  // nobody saw this id: the earlier job is the answer
+    }
+    if (stored.spec().SerializeAsString() != request.SerializeAsString())
+      invalid("request_id '" + request.request_id() + "' was used for another job spec (job " + stored.id() + ")");
+    return with_progress(std::move(stored));
+  }
+  test_hooks::at(test_hooks::Point::kSubmitAfterInsert);
+  place.commit(stored.id());
   spdlog::info("job {} ({}) queued for tenant '{}'", stored.id(), kind, tenant);
   return stored;
 }
 
+std::shared_ptr<LiveJob> Manager::find_live(const std::string& id) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = live_.find(id);
+  return it == live_.end() ? nullptr : it->second;
+}
+
 pb::Job Manager::get(const std::string& tenant, const std::string& id) {
-  auto job = store_.get_job(tenant, id);
-  if (!job) fail(ErrorCode::kNotFound, "no job " + id);
-  return with_progress(std::move(*job));
+  pb::Job current;
+  (void)live(tenant, id, current);
+  return current;
 }
 
 pb::Job Manager::with_progress(pb::Job stored) {
   if (is_terminal(stored.state())) return stored;
-  std::shared_ptr<LiveJob> l;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    auto it = live_.find(stored.id());
-    if (it != live_.end()) l = it->second;
-  }
+  std::shared_ptr<LiveJob> l = find_live(stored.id());
   if (!l) return stored;
   std::lock_guard<std::mutex> lock(l->mutex);
   return l->job;
 }
 
+// Order matters: the live entry is looked up before the store is read. A job leaves the live
+// map only after its terminal state is in the store (run, cancel), so either the entry was
+// found (and it holds the latest state, the terminal one included) or the store read that
+// follows sees the job finished. The other order could read RUNNING from the store, lose the
+// entry to a job finishing meanwhile, and hand a watcher a stale state with no terminal event.
 std::shared_ptr<LiveJob> Manager::live(const std::string& tenant, const std::string& id, pb::Job& current) {
-  current = get(tenant, id);  // NOT_FOUND for others' jobs
-  std::lock_guard<std::mutex> lock(mutex_);
-  auto it = live_.find(id);
-  return it == live_.end() ? nullptr : it->second;
+  std::shared_ptr<LiveJob> l = find_live(id);
+  test_hooks::at(test_hooks::Point::kLiveBetweenLookups);
+  auto stored = store_.get_job(tenant, id);
+  if (!stored) fail(ErrorCode::kNotFound, "no job " + id);  // others' jobs too
+  if (!l || is_terminal(stored->state())) {
+    current = std::move(*stored);
+    return is_terminal(current.state()) ? nullptr : l;
+  }
+  std::lock_guard<std::mutex> lock(l->mutex);
+  current = l->job;
+  return l;
 }
 
 pb::Job Manager::cancel(const std::string& tenant, const std::string& id) {
@@ -599,13 +624,9 @@ pb::JobResult run_matrix_job(Context& c, const pb::MatrixSpec& s, const std::str
 }  // namespace
 
 void Manager::run(const std::string& id) {
-  std::shared_ptr<LiveJob> l;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    auto it = live_.find(id);
-    if (it == live_.end()) return;  // cancelled while queued
-    l = it->second;
-  }
+  test_hooks::at(test_hooks::Point::kRunStart);
+  std::shared_ptr<LiveJob> l = find_live(id);
+  if (!l) return;  // cancelled while queued
   std::string tenant;
   pb::Job job;
   {

@@ -74,6 +74,7 @@ class Manager {
 
  private:
   void run(const std::string& id);
+  std::shared_ptr<LiveJob> find_live(const std::string& id);
   void publish(LiveJob& live, const pb::JobEvent& event);
   void finish(const std::shared_ptr<LiveJob>& live, pb::Job job);
 

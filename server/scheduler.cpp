@@ -28,12 +28,27 @@ Scheduler::~Scheduler() {
   join();
 }
 
-bool Scheduler::try_enqueue(const std::string& id) {
+Scheduler::Reservation Scheduler::try_reserve() {
   std::lock_guard<std::mutex> lock(mutex_);
-  if (static_cast<int>(queue_.size()) >= capacity_) return false;
-  queue_.push_back(id);
-  cv_.notify_one();
-  return true;
+  if (static_cast<int>(queue_.size()) + reserved_ >= capacity_) return Reservation();
+  ++reserved_;
+  return Reservation(this);
+}
+
+void Scheduler::Reservation::commit(const std::string& id) {
+  {
+    std::lock_guard<std::mutex> lock(s_->mutex_);
+    --s_->reserved_;
+    s_->queue_.push_back(id);
+    s_->cv_.notify_one();
+  }
+  s_ = nullptr;
+}
+
+Scheduler::Reservation::~Reservation() {
+  if (!s_) return;
+  std::lock_guard<std::mutex> lock(s_->mutex_);
+  --s_->reserved_;
 }
 
 void Scheduler::enqueue(const std::string& id) {

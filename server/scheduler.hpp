@@ -12,6 +12,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 namespace brenier::server {
@@ -22,8 +23,23 @@ class Scheduler {
   Scheduler(int workers, int queue_capacity, RunJob run);
   ~Scheduler();
 
-  /// Queues a job; false when the queue holds `queue_capacity` jobs already.
-  bool try_enqueue(const std::string& job_id);
+  /// A place in the queue held for a job about to be accepted: commit() queues the job in it;
+  /// dropped uncommitted, the place is freed. False when the queue was full.
+  class Reservation {
+   public:
+    Reservation() = default;
+    explicit Reservation(Scheduler* s) : s_(s) {}
+    Reservation(Reservation&& o) noexcept : s_(std::exchange(o.s_, nullptr)) {}
+    Reservation& operator=(Reservation&&) = delete;
+    ~Reservation();
+    explicit operator bool() const { return s_ != nullptr; }
+    void commit(const std::string& job_id);
+
+   private:
+    Scheduler* s_ = nullptr;
+  };
+  /// Holds a place when fewer than `queue_capacity` jobs are queued or held.
+  Reservation try_reserve();
   /// Queues a job whatever the queue's length (jobs accepted before a restart).
   void enqueue(const std::string& job_id);
   /// Takes a queued job out of the queue (cancelled before it started), freeing its place.
@@ -48,6 +64,7 @@ class Scheduler {
 
   RunJob run_;
   int capacity_;
+  int reserved_ = 0;  // places held by Reservations not yet committed
   std::mutex mutex_;
   std::condition_variable cv_;
   std::deque<std::string> queue_;

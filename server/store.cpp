@@ -1,4 +1,5 @@
 #include "store.hpp"
+#include "test_hooks.hpp"
 
 #include <fcntl.h>
 #include <sqlite3.h>
@@ -216,21 +217,32 @@ void Store::commit_blob(Blob kind, const std::string& temp, const std::string& s
   fsync_path(fs::path(path).parent_path().string(), true);
 }
 
+std::string Store::write_temp(const std::string& bytes) {
+  const std::string temp = temp_path();
+  std::ofstream os(temp, std::ios::binary | std::ios::trunc);
+  if (!os || !os.write(bytes.data(), static_cast<std::streamsize>(bytes.size())) || !os.flush())
+    fail(ErrorCode::kInternal, "cannot write a blob in " + dir_ + "/tmp");
+  return temp;
+}
+
 std::string Store::put_blob(Blob kind, const std::string& bytes, const std::string& known_sha) {
   const std::string sha = known_sha.empty() ? sha256_hex(bytes) : known_sha;
   if (has_blob(kind, sha)) return sha;
-  const std::string temp = temp_path();
-  {
-    std::ofstream os(temp, std::ios::binary | std::ios::trunc);
-    if (!os || !os.write(bytes.data(), static_cast<std::streamsize>(bytes.size())) || !os.flush())
-      fail(ErrorCode::kInternal, "cannot write a blob in " + dir_ + "/tmp");
-  }
-  commit_blob(kind, temp, sha);
+  commit_blob(kind, write_temp(bytes), sha);
   return sha;
 }
 
-pb::Mesh Store::put_mesh(const std::string& tenant, const pb::Mesh& mesh) {
+pb::Mesh Store::put_mesh_with_blob(const std::string& tenant, const pb::Mesh& mesh, const std::string& bytes) {
+  // The long write goes to a temporary file outside the lock; the check that the blob is
+  // there, its rename and the row go in under the writer's lock, the one delete_mesh holds
+  // while it removes a last row and its blob. So a row never outlives its bytes: a delete
+  // either comes first (and this puts the blob back) or sees this row and keeps the blob.
+  std::string temp;
+  if (!has_blob(Blob::kMesh, mesh.id())) temp = write_temp(bytes);
   std::lock_guard<std::mutex> lock(writer_.mutex);
+  if (temp.empty() && !has_blob(Blob::kMesh, mesh.id())) temp = write_temp(bytes);  // deleted meanwhile
+  if (!temp.empty()) commit_blob(Blob::kMesh, temp, mesh.id());
+  test_hooks::at(test_hooks::Point::kMeshBeforeRow);
   Stmt(writer_, "INSERT OR IGNORE INTO meshes (tenant, id, record) VALUES (?, ?, ?)")
       .text(1, tenant)
       .text(2, mesh.id())

@@ -48,8 +48,10 @@ class Store {
   bool has_blob(Blob kind, const std::string& sha256) const;
 
   // ---- meshes (per tenant; one blob may back several tenants' rows) ----
-  /// Inserts the mesh, or returns the row the tenant already has for that id.
-  pb::Mesh put_mesh(const std::string& tenant, const pb::Mesh& mesh);
+  /// Stores the mesh's bytes as its blob (named by mesh.id(), their SHA-256) and inserts the
+  /// row, or returns the row the tenant already has for that id. Atomic with delete_mesh:
+  /// every row has its blob.
+  pb::Mesh put_mesh_with_blob(const std::string& tenant, const pb::Mesh& mesh, const std::string& bytes);
   std::optional<pb::Mesh> get_mesh(const std::string& tenant, const std::string& id);
   /// Up to `limit` meshes after the page token (empty: from the start); `next` gets the
   /// token of the following page, empty at the end.
@@ -84,6 +86,7 @@ class Store {
 
  private:
   void exec(const char* sql);
+  std::string write_temp(const std::string& bytes);
   void commit_blob(Blob kind, const std::string& temp, const std::string& sha256);
   /// A reader connection, locked for the caller: WAL lets reads run beside the one writer,
   /// so a GetJob or a submission's mesh lookup never waits behind a job's commit.

@@ -69,6 +69,13 @@ class Tokenizer {
   size_t pos_ = 0;
 };
 
+uint32_t load_be32(const char* p) {
+  uint32_t v;
+  std::memcpy(&v, p, 4);
+  if constexpr (std::endian::native == std::endian::little) v = __builtin_bswap32(v);
+  return v;
+}
+
 std::optional<int64_t> parse_count(std::optional<std::string_view> tok) {
   if (!tok || tok->empty() || tok->size() > 18) return std::nullopt;
   int64_t v = 0;
@@ -99,16 +106,32 @@ void check_declared(const char* fmt, const char* what, int64_t count, int64_t mi
             " bytes follow the header");
 }
 
+// The OFF keyword is [ST][C][N][4][n]OFF, each prefix optional and in this order; anything
+// else ("BINARYOFF", say) is not OFF.
+bool is_off_keyword(std::string_view m) {
+  if (!m.ends_with("OFF")) return false;
+  m.remove_suffix(3);
+  for (std::string_view part : {"ST", "C", "N", "4", "n"})
+    if (m.starts_with(part)) m.remove_prefix(part.size());
+  return m.empty();
+}
+
+// What guard_off found and checked: the reader starts at `body` and reads exactly `nv`
+// vertices and `nf` faces, never re-parsing the header (a second parse that finds the counts
+// elsewhere, e.g. "BINARY" inside the keyword "BINARYOFF", would read unchecked counts).
 struct OffHeader {
   bool binary = false;
+  int64_t nv = 0, nf = 0;
+  size_t body = 0;          // offset of the first vertex (binary: of its first float)
+  int64_t body_line = 0;    // lines before `body` (ascii error messages count from 1)
 };
 
 OffHeader guard_off(std::string_view bytes, const ReadLimits& limits) {
   Tokenizer tok(bytes);
   auto magic = tok.next();
   // Keyword [ST][C][N][4][n]OFF: case matters ('N' normals, 'n' a dimension follows).
-  if (!magic || magic->size() < 3 || magic->substr(magic->size() - 3) != "OFF")
-    invalid("OFF file does not start with an OFF keyword");
+  if (!magic || !is_off_keyword(*magic))
+    invalid("OFF file does not start with an OFF keyword ([ST][C][N][4][n]OFF)");
   std::string_view m = *magic;
   if (m.find('4') != std::string_view::npos)
     invalid("OFF file is 4-dimensional (4OFF), not a surface in 3-D");
@@ -124,21 +147,18 @@ OffHeader guard_off(std::string_view bytes, const ReadLimits& limits) {
     if (!dim || *dim != 3) invalid("OFF file declares a dimension other than 3");
   }
   if (h.binary) {
-    // Binary OFF stores the counts as big-endian int32 right after "OFF BINARY\n".
-    size_t p = tok.pos();
-    while (p < bytes.size() && bytes[p] != '\n') ++p;
+    // Binary OFF stores the counts as big-endian int32 on the line after the BINARY token.
+    size_t p = bytes.find('\n', tok.pos());
+    if (p == std::string_view::npos || bytes.size() - p - 1 < 12)
+      invalid("binary OFF file is truncated in its header");
     ++p;
-    if (p + 12 > bytes.size()) invalid("binary OFF file is truncated in its header");
-    auto be32 = [&](size_t at) {
-      uint32_t v = 0;
-      for (int i = 0; i < 4; ++i) v = (v << 8) | static_cast<unsigned char>(bytes[at + i]);
-      return static_cast<int64_t>(static_cast<int32_t>(v));
-    };
-    int64_t nv = be32(p), nf = be32(p + 4);
-    check_limits("OFF", nv, nf, limits);
-    int64_t avail = static_cast<int64_t>(bytes.size() - p - 12);
-    check_declared("binary OFF", "vertices", nv, 12, avail);
-    check_declared("binary OFF", "faces", nf, 4, avail - nv * 12);
+    h.nv = static_cast<int32_t>(load_be32(bytes.data() + p));
+    h.nf = static_cast<int32_t>(load_be32(bytes.data() + p + 4));
+    h.body = p + 12;
+    check_limits("OFF", h.nv, h.nf, limits);
+    int64_t avail = static_cast<int64_t>(bytes.size() - h.body);
+    check_declared("binary OFF", "vertices", h.nv, 12, avail);
+    check_declared("binary OFF", "faces", h.nf, 4, avail - h.nv * 12);
     return h;
   }
   auto nv = parse_count(tok.next());
@@ -146,12 +166,19 @@ OffHeader guard_off(std::string_view bytes, const ReadLimits& limits) {
   auto ne = parse_count(tok.next());
   if (!nv || !nf || !ne)
     invalid("OFF header must give three non-negative counts (vertices faces edges)");
-  check_limits("OFF", *nv, *nf, limits);
-  int64_t avail = static_cast<int64_t>(bytes.size() - tok.pos());
+  h.nv = *nv;
+  h.nf = *nf;
+  check_limits("OFF", h.nv, h.nf, limits);
+  // The body starts on the line after the counts (anything after them on their line, a
+  // comment say, is not data).
+  size_t nl = bytes.find('\n', tok.pos());
+  h.body = nl == std::string_view::npos ? bytes.size() : nl + 1;
+  h.body_line = std::count(bytes.begin(), bytes.begin() + static_cast<std::ptrdiff_t>(h.body), '\n');
+  int64_t avail = static_cast<int64_t>(bytes.size() - h.body);
   // An ascii vertex needs at least "x y z" plus a separator (6 bytes), a face "k" and a
   // separator (2 bytes).
-  check_declared("OFF", "vertices", *nv, 6, avail + 1);
-  check_declared("OFF", "faces", *nf, 2, avail + 1 - *nv * 6);
+  check_declared("OFF", "vertices", h.nv, 6, avail + 1);
+  check_declared("OFF", "faces", h.nf, 2, avail + 1 - h.nv * 6);
   return h;
 }
 
@@ -479,16 +506,12 @@ bool stl_is_binary(std::string_view bytes, const ReadLimits& limits) {
 // a vertex line starts with x y z (normals, colours or texture coordinates may follow and
 // are ignored), a face line with k i1 .. ik (a colour may follow and is ignored).
 // ---------------------------------------------------------------------------------------
-uint32_t load_be32(const char* p) {
-  uint32_t v;
-  std::memcpy(&v, p, 4);
-  if constexpr (std::endian::native == std::endian::little) v = __builtin_bswap32(v);
-  return v;
-}
 
 class LineReader {
  public:
-  explicit LineReader(std::string_view s) : s_(s) {}
+  // `s` starts after `lines_before` lines of the file (for the line numbers in messages).
+  explicit LineReader(std::string_view s, int64_t lines_before = 0)
+      : s_(s), line_no_(lines_before) {}
   // Next line with its comment removed that has at least one token; nullopt at the end.
   std::optional<std::string_view> next() {
     while (pos_ < s_.size()) {
@@ -542,92 +565,71 @@ int parse_numbers(std::string_view line, T* out, int n) {
   return got;
 }
 
-PolygonSoup read_off(std::string_view bytes, const ReadLimits& limits) {
-  OffHeader h = guard_off(bytes, limits);
-  if (h.binary) {
-    // "OFF BINARY\n", then big-endian int32 counts, float32 coordinates, and faces as
-    // int32 k, k int32 indices, int32 number of colour components, that many float32.
-    size_t p = bytes.find("BINARY");
-    p = bytes.find('\n', p);
-    ++p;
-    auto be32 = [&](size_t at) { return static_cast<int32_t>(load_be32(bytes.data() + at)); };
-    int64_t nv = be32(p), nf = be32(p + 4);
-    p += 12;
-    PolygonSoup soup;
-    soup.positions.resize(static_cast<size_t>(nv));
-    for (int64_t i = 0; i < nv; ++i, p += 12) {
-      float xyz[3];
-      for (int k = 0; k < 3; ++k) {
-        uint32_t u = load_be32(bytes.data() + p + 4 * k);
-        std::memcpy(&xyz[k], &u, 4);
-      }
-      soup.positions[i] = Eigen::Vector3d(xyz[0], xyz[1], xyz[2]);
-    }
-    for (int64_t f = 0; f < nf; ++f) {
-      if (p + 4 > bytes.size()) invalid("binary OFF file is truncated in face " + std::to_string(f));
-      int64_t k = be32(p);
-      p += 4;
-      if (k < 0 || static_cast<uint64_t>(k) * 4 + 4 > bytes.size() - p)
-        invalid("binary OFF file is truncated or corrupt in face " + std::to_string(f));
-      for (int64_t i = 0; i < k; ++i, p += 4) soup.indices.push_back(be32(p));
-      soup.face_offsets.push_back(static_cast<int64_t>(soup.indices.size()));
-      int64_t nc = be32(p);
-      p += 4;
-      if (nc < 0 || nc > 4 || static_cast<uint64_t>(nc) * 4 > bytes.size() - p)
-        invalid("binary OFF file is corrupt in the colour of face " + std::to_string(f));
-      p += static_cast<size_t>(nc) * 4;
-    }
-    return soup;
-  }
-  // Header tokens: keyword, the dimension for "nOFF", then the three counts; they may share
-  // lines or be spread over several.
-  LineReader lines(bytes);
-  std::vector<std::string> head;
-  size_t need = 4;
-  while (head.size() < need) {
-    auto l = lines.next();
-    if (!l) invalid("OFF file ends in its header (before the vertex, face and edge counts)");
-    std::istringstream ls{std::string(*l)};
-    std::string tok;
-    while (head.size() < need && ls >> tok) {
-      head.push_back(tok);
-      if (head.size() == 1 && tok.size() >= 4 && tok[tok.size() - 4] == 'n') need = 5;
-    }
-  }
-  auto nvv = parse_count(head[need - 3]);
-  auto nff = parse_count(head[need - 2]);
-  if (!nvv || !nff) invalid("OFF file has no valid 'vertices faces edges' counts");
-  int64_t c[2] = {*nvv, *nff};
-  const int64_t nv = c[0], nf = c[1];
-  // guard_off has checked both counts against the bytes present.
+// Binary OFF body: float32 coordinates, then faces as int32 k, k int32 indices, int32
+// number of colour components and that many float32 (all big-endian).
+PolygonSoup read_off_binary(std::string_view bytes, const OffHeader& h) {
+  size_t p = h.body;
+  auto be32 = [&](size_t at) { return static_cast<int64_t>(static_cast<int32_t>(load_be32(bytes.data() + at))); };
   PolygonSoup soup;
-  soup.positions.reserve(static_cast<size_t>(nv));
-  for (int64_t i = 0; i < nv; ++i) {
+  soup.positions.resize(static_cast<size_t>(h.nv));  // guard_off: 12 bytes each are present
+  for (int64_t i = 0; i < h.nv; ++i, p += 12) {
+    float xyz[3];
+    for (int k = 0; k < 3; ++k) {
+      uint32_t u = load_be32(bytes.data() + p + 4 * k);
+      std::memcpy(&xyz[k], &u, 4);
+    }
+    soup.positions[i] = Eigen::Vector3d(xyz[0], xyz[1], xyz[2]);
+  }
+  for (int64_t f = 0; f < h.nf; ++f) {
+    if (bytes.size() - p < 4) invalid("binary OFF file is truncated in face " + std::to_string(f));
+    int64_t k = be32(p);
+    p += 4;
+    if (k < 0 || static_cast<uint64_t>(k) * 4 + 4 > bytes.size() - p)
+      invalid("binary OFF file is truncated or corrupt in face " + std::to_string(f));
+    for (int64_t i = 0; i < k; ++i, p += 4) soup.indices.push_back(be32(p));
+    soup.face_offsets.push_back(static_cast<int64_t>(soup.indices.size()));
+    int64_t nc = be32(p);
+    p += 4;
+    if (nc < 0 || nc > 4 || static_cast<uint64_t>(nc) * 4 > bytes.size() - p)
+      invalid("binary OFF file is corrupt in the colour of face " + std::to_string(f));
+    p += static_cast<size_t>(nc) * 4;
+  }
+  return soup;
+}
+
+PolygonSoup read_off(std::string_view bytes, const ReadLimits& limits) {
+  const OffHeader h = guard_off(bytes, limits);
+  if (h.binary) return read_off_binary(bytes, h);
+  // The ascii body from the header's end: lines of "x y z ..." then "k i1 .. ik ...".
+  LineReader lines(bytes.substr(h.body), h.body_line);
+  auto where = [&] { return "OFF line " + std::to_string(lines.line_no()) + ": "; };
+  PolygonSoup soup;
+  soup.positions.reserve(static_cast<size_t>(h.nv));  // guard_off: 6 bytes each are present
+  for (int64_t i = 0; i < h.nv; ++i) {
     auto l = lines.next();
     if (!l)
-      invalid("OFF file is truncated: it declares " + std::to_string(nv) + " vertices but has " +
+      invalid("OFF file is truncated: it declares " + std::to_string(h.nv) + " vertices but has " +
               std::to_string(i));
     double xyz[3];
     if (parse_numbers(*l, xyz, 3) != 3)
-      invalid("OFF line " + std::to_string(lines.line_no()) + ": vertex " + std::to_string(i) +
-              " does not start with three numbers");
+      invalid(where() + "vertex " + std::to_string(i) + " does not start with three numbers");
     soup.positions.emplace_back(xyz[0], xyz[1], xyz[2]);
   }
-  soup.face_offsets.reserve(static_cast<size_t>(nf) + 1);
+  soup.face_offsets.reserve(static_cast<size_t>(h.nf) + 1);
   std::vector<int64_t> buf;
-  for (int64_t f = 0; f < nf; ++f) {
+  for (int64_t f = 0; f < h.nf; ++f) {
     auto l = lines.next();
     if (!l)
-      invalid("OFF file is truncated: it declares " + std::to_string(nf) + " faces but has " +
+      invalid("OFF file is truncated: it declares " + std::to_string(h.nf) + " faces but has " +
               std::to_string(f));
     int64_t k = -1;
+    // A line of k indices holds at least 2k bytes: k is bounded by the line it is on.
     if (parse_numbers(*l, &k, 1) != 1 || k < 0 || k > static_cast<int64_t>(l->size()))
-      invalid("OFF line " + std::to_string(lines.line_no()) + ": face " + std::to_string(f) +
-              " does not start with its vertex count");
+      invalid(where() + "face " + std::to_string(f) + " does not start with its vertex count");
     buf.resize(static_cast<size_t>(k) + 1);
     if (parse_numbers(*l, buf.data(), static_cast<int>(k) + 1) != k + 1)
-      invalid("OFF line " + std::to_string(lines.line_no()) + ": face " + std::to_string(f) +
-              " declares " + std::to_string(k) + " vertices but lists fewer");
+      invalid(where() + "face " + std::to_string(f) + " declares " + std::to_string(k) +
+              " vertices but lists fewer");
     soup.indices.insert(soup.indices.end(), buf.begin() + 1, buf.end());
     soup.face_offsets.push_back(static_cast<int64_t>(soup.indices.size()));
   }

@@ -462,6 +462,42 @@ TEST(Service, BadUploadsGetTheRightStatusAndTheServerStaysHealthy) {
   EXPECT_TRUE(server.alive());
 }
 
+// Every malformed file of the fixtures, the 88-byte OFF that used to crash brenierd among them
+// (issue 20), and every reproducer the fuzzers have found: each is refused with its status
+// and the server stays SERVING for everyone else.
+TEST(Service, EveryMalformedFileIsRefusedAndTheServerStaysServing) {
+  ServerProcess server(temp_dir("svc-malformed"));
+  Client c = server.client();
+  const std::string mine = c.upload_bytes(hemisphere(), "h.off").id();
+  std::vector<std::filesystem::path> files;
+  for (const char* dir : {"/malformed", "/fuzz-regressions"})
+    for (const auto& e : std::filesystem::directory_iterator(std::string(BRENIER_TEST_FIXTURES) + dir))
+      files.push_back(e.path());
+  ASSERT_GT(files.size(), 20u);
+  int refused = 0;
+  for (const auto& path : files) {
+    std::ifstream in(path, std::ios::binary);
+    const std::string bytes(std::istreambuf_iterator<char>(in), {});
+    try {
+      c.upload_bytes(bytes, path.filename().string());
+    } catch (const client::Error& e) {
+      EXPECT_TRUE(e.code() == grpc::StatusCode::INVALID_ARGUMENT || e.code() == grpc::StatusCode::RESOURCE_EXHAUSTED)
+          << path << ": " << e.code() << " " << e.what();
+      EXPECT_FALSE(std::string(e.what()).empty()) << path;
+      if (path.filename() == "binary_in_keyword.off") {
+        EXPECT_EQ(e.code(), grpc::StatusCode::INVALID_ARGUMENT);
+        EXPECT_NE(std::string(e.what()).find("OFF keyword"), std::string::npos) << e.what();
+      }
+      ++refused;
+    }
+    ASSERT_TRUE(server.alive()) << path << " took the server down";
+  }
+  // Reproducers of reader crashes may be valid meshes once read right; the fixtures are not.
+  EXPECT_GE(refused, 24);
+  EXPECT_EQ(server.health(), 1);
+  EXPECT_EQ(c.get_mesh(mine).id(), mine);
+}
+
 // ---- persistence -------------------------------------------------------------------------
 
 TEST(Service, KillNineMidWorkThenARestartLosesNothing) {

@@ -3,6 +3,8 @@
 
 #include <chrono>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <string>
 
 #include "common/error.hpp"
@@ -182,6 +184,62 @@ TEST(Io, AbsurdHeaderCountsAreRefusedBeforeAllocating) {
   EXPECT_NE(error_of(stl, Format::kStl).find("declares"), std::string::npos);
   auto secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   EXPECT_LT(secs, 5.0);
+}
+
+// Regression (issue 20): the 88-byte upload that killed brenierd. Its keyword "BINARYOFF"
+// holds "BINARY"; the reader used to find the counts again by searching for that word, land
+// inside the keyword and read four bytes of text as a vertex count (gigabytes allocated,
+// reads far past the buffer). Now the keyword is refused, and the reader never re-parses.
+TEST(Io, BinaryInsideTheOffKeywordIsRefused) {
+  std::string bytes;
+  {
+    std::ifstream in(kFixtures + "/malformed/binary_in_keyword.off", std::ios::binary);
+    bytes.assign(std::istreambuf_iterator<char>(in), {});
+  }
+  ASSERT_EQ(bytes.size(), 88u);
+  EXPECT_NE(error_of(bytes, Format::kOff).find("does not start with an OFF keyword"), std::string::npos);
+  EXPECT_NE(error_of("STCNnOFFX\n3 1 0\n", Format::kOff).find("OFF keyword"), std::string::npos);
+  EXPECT_NE(error_of("XOFF\n3 1 0\n", Format::kOff).find("OFF keyword"), std::string::npos);
+}
+
+namespace {
+std::string be32s(std::initializer_list<int32_t> v) {
+  std::string out;
+  for (int32_t x : v) {
+    uint32_t u = static_cast<uint32_t>(x);
+    for (int k = 3; k >= 0; --k) out += static_cast<char>((u >> (8 * k)) & 0xFF);
+  }
+  return out;
+}
+std::string be_floats(std::initializer_list<float> v) {
+  std::string out;
+  for (float x : v) {
+    uint32_t u;
+    std::memcpy(&u, &x, 4);
+    out += be32s({static_cast<int32_t>(u)});
+  }
+  return out;
+}
+}  // namespace
+
+// The counts are read where the header guard checked them: a comment naming BINARY before
+// the keyword, or junk after the BINARY token, must not move them.
+TEST(Io, BinaryOffCountsAreReadWhereTheGuardCheckedThem) {
+  const std::string body = be32s({3, 1, 0}) + be_floats({0, 0, 0, 1, 0, 0, 0, 1, 0}) +
+                           be32s({3, 0, 1, 2, 0});
+  for (std::string head : {"OFF BINARY\n", "# BINARY comment\nOFF BINARY\n", "COFF\nBINARY junk\n"}) {
+    PolygonSoup soup = read_soup(head + body, Format::kOff);
+    ASSERT_EQ(soup.positions.size(), 3u) << head;
+    ASSERT_EQ(soup.num_faces(), 1) << head;
+    EXPECT_EQ(soup.positions[1], Eigen::Vector3d(1, 0, 0)) << head;
+  }
+  // Counts that do not fit the bytes are refused, whatever precedes them.
+  EXPECT_NE(error_of("# BINARY\nOFF BINARY\n" + be32s({1000, 1, 0}) + body.substr(12), Format::kOff)
+                .find("declares"),
+            std::string::npos);
+  // And the ascii body starts after the counts' line, with line numbers counted from the file's start.
+  EXPECT_NE(error_of("OFF\n# c\n3 1 0 # counts\n0 0 0\n1 0 0\nx y z\n3 0 1 2\n", Format::kOff).find("OFF line 6"),
+            std::string::npos);
 }
 
 TEST(Io, LimitsAreEnforced) {
