@@ -1,14 +1,78 @@
 #!/usr/bin/env bash
-# Installs dependencies, fetches the real meshes, configures, builds and runs every test.
+# Installs dependencies, fetches the real meshes, configures, builds and runs the tests.
 # Exits non-zero on any failure. BUILD_DIR (default build/) and JOBS may be set.
+#
+#   scripts/test.sh                      Release build (gcc), every test
+#   scripts/test.sh --sanitize address   clang + AddressSanitizer + UBSan in build-asan/: the unit,
+#                                        race, service and CLI-inspect tests (brenierd itself
+#                                        sanitized), and the fuzz targets built and run briefly
+#   scripts/test.sh --sanitize thread    clang + ThreadSanitizer in build-tsan/: the race and
+#                                        service tests, and the unit tests of the parallel code
+#   scripts/test.sh --sanitize all       both sanitizer runs (CI runs this after the plain one)
+#
+# Why these suites: the real-mesh and distance suites are numerical runs of minutes in Release
+# and would take hours sanitized; what they exercise under a sanitizer (readers, the
+# transport, the cells) the unit tests and fuzzers cover on small inputs. Everything that has
+# threads or sockets (the server, its races) runs under both.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-BUILD_DIR="${BUILD_DIR:-$ROOT/build}"
 JOBS="${JOBS:-$(nproc)}"
+SANITIZE=""
+while (($#)); do
+  case "$1" in
+    --sanitize) SANITIZE="${2:?--sanitize needs address, thread or all}"; shift 2 ;;
+    *) echo "test.sh: unknown argument '$1' (--sanitize address|thread|all)" >&2; exit 2 ;;
+  esac
+done
 
 bash "$ROOT/scripts/install-deps.sh"
 bash "$ROOT/scripts/fetch-data.sh"
-cmake -S "$ROOT" -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release
-cmake --build "$BUILD_DIR" -j "$JOBS"
-cd "$BUILD_DIR"
-ctest --output-on-failure -j "$JOBS" --timeout 1200
+
+if [[ -z "$SANITIZE" ]]; then
+  BUILD_DIR="${BUILD_DIR:-$ROOT/build}"
+  cmake -S "$ROOT" -B "$BUILD_DIR" -G Ninja -DCMAKE_BUILD_TYPE=Release
+  cmake --build "$BUILD_DIR" -j "$JOBS"
+  cd "$BUILD_DIR"
+  exec ctest --output-on-failure -j "$JOBS" --timeout 1200
+fi
+
+SUPP="$ROOT/tests/sanitizers"
+TARGETS=(brenier_unit_tests brenier_race_tests brenier_service_tests brenierd brenier brenier-compute)
+
+sanitized() {  # $1: address or thread
+  local kind=$1 dir="$ROOT/build-${1/address/asan}"
+  dir="${dir/thread/tsan}"
+  local extra=() targets=("${TARGETS[@]}")
+  if [[ $kind == address ]]; then
+    extra=(-DBRENIER_BUILD_FUZZ=ON)
+    targets+=(fuzz_read_obj fuzz_read_off fuzz_read_ply fuzz_read_stl fuzz_read_freesurfer fuzz_service)
+  fi
+  echo "== sanitizer build: $kind in $dir"
+  CC=clang CXX=clang++ cmake -S "$ROOT" -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+    -DBRENIER_SANITIZE="$kind" -DBRENIER_BUILD_BENCH=OFF "${extra[@]}" >/dev/null
+  cmake --build "$dir" -j "$JOBS" --target "${targets[@]}"
+  (
+    cd "$dir"
+    export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
+    export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1:detect_stack_use_after_return=1"
+    export LSAN_OPTIONS="suppressions=$SUPP/lsan.supp:print_suppressions=0"
+    # OpenMP's own synchronization is invisible to TSan unless libomp's Archer tool reports it.
+    export TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$SUPP/tsan.supp"
+    export OMP_TOOL_LIBRARIES=/usr/lib/llvm-14/lib/libarcher.so
+    if [[ $kind == address ]]; then
+      ctest --output-on-failure -j "$JOBS" --timeout 1500 \
+        -R '^(Io|Validate|Topology|Conformal|Krylov|Omt|Distance|Fixture|Service|cli\.inspect|service\.).*' \
+        -E 'Service(RealMeshes)?\..*(RealMeshes|Matrix|Distance).*'
+      bash "$ROOT/scripts/fuzz.sh" "$dir" --runs 20000
+    else
+      ctest --output-on-failure -j "$JOBS" --timeout 1500 \
+        -R '^(Fixture|Service|Omt|Krylov)\..*' -E 'Service(RealMeshes)?\..*(RealMeshes|Matrix|Distance).*'
+    fi
+  )
+}
+
+case "$SANITIZE" in
+  address|thread) sanitized "$SANITIZE" ;;
+  all) sanitized address; sanitized thread ;;
+  *) echo "test.sh: --sanitize takes address, thread or all, not '$SANITIZE'" >&2; exit 2 ;;
+esac

@@ -1,5 +1,10 @@
 #include "auth.hpp"
 
+#include <openssl/crypto.h>
+#include <openssl/sha.h>
+#include <sys/stat.h>
+
+#include <cstdio>
 #include <fstream>
 #include <sstream>
 
@@ -7,7 +12,29 @@
 
 namespace brenier::server {
 
+namespace {
+
+std::string digest(const std::string& token) {
+  unsigned char d[SHA256_DIGEST_LENGTH];
+  SHA256(reinterpret_cast<const unsigned char*>(token.data()), token.size(), d);
+  return std::string(reinterpret_cast<const char*>(d), sizeof d);
+}
+
+}  // namespace
+
+void require_private_file(const std::string& path, const char* what) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) invalid("cannot read the " + std::string(what) + " file " + path);
+  if ((st.st_mode & 077) != 0) {
+    char mode[8];
+    std::snprintf(mode, sizeof mode, "%04o", static_cast<unsigned>(st.st_mode & 07777));
+    invalid("the " + std::string(what) + " file " + path + " is open to group or others (mode " + mode +
+            "); make it private: chmod 600 " + path);
+  }
+}
+
 Auth Auth::from_file(const std::string& path) {
+  require_private_file(path, "tokens");
   std::ifstream in(path);
   if (!in) invalid("cannot read the tokens file " + path);
   Auth a;
@@ -19,7 +46,10 @@ Auth Auth::from_file(const std::string& path) {
     if (!(ss >> tenant) || (ss >> extra && extra[0] != '#'))
       invalid(path + ":" + std::to_string(n) + ": expected 'TOKEN TENANT'");
     if (token.size() < 16) invalid(path + ":" + std::to_string(n) + ": tokens must have at least 16 characters");
-    if (!a.tenants_.emplace(token, tenant).second) invalid(path + ":" + std::to_string(n) + ": the token is given twice");
+    const std::string d = digest(token);
+    for (const Entry& e : a.tenants_)
+      if (e.digest == d) invalid(path + ":" + std::to_string(n) + ": the token is given twice");
+    a.tenants_.push_back({d, tenant});
   }
   if (a.tenants_.empty()) invalid(path + " holds no token");
   return a;
@@ -34,9 +64,13 @@ std::string Auth::tenant(const grpc::ServerContext* context) const {
   constexpr std::string_view kBearer = "Bearer ";
   if (value.compare(0, kBearer.size(), kBearer) != 0)
     fail(ErrorCode::kUnauthenticated, "the authorization header must be 'Bearer TOKEN'");
-  auto t = tenants_.find(value.substr(kBearer.size()));
-  if (t == tenants_.end()) fail(ErrorCode::kUnauthenticated, "unknown token");
-  return t->second;
+  // Every entry is compared, whatever matched, in constant time.
+  const std::string d = digest(value.substr(kBearer.size()));
+  const Entry* match = nullptr;
+  for (const Entry& e : tenants_)
+    if (CRYPTO_memcmp(e.digest.data(), d.data(), d.size()) == 0) match = &e;
+  if (!match) fail(ErrorCode::kUnauthenticated, "unknown token");
+  return match->tenant;
 }
 
 }  // namespace brenier::server

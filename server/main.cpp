@@ -62,6 +62,7 @@ struct Flags {
   std::string data = "brenier-data";
   int workers = 0, queue = 64;
   int64_t max_upload_mb = 512, max_vertices = 5'000'000;
+  int max_watches = 32, max_uploads = 8;
   std::string tokens, tls_cert, tls_key, tls_client_ca, port_file;
   double grace = 30;
   std::string log_level = "info";
@@ -79,6 +80,8 @@ int serve(const Flags& f) {
     grpc::SslServerCredentialsOptions o(f.tls_client_ca.empty()
                                            ? GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE
                                            : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY);
+    brenier::server::require_private_file(f.tls_key, "TLS key");
+    // gRPC's TLS servers refuse versions below 1.2 (checked by the service tests with openssl).
     o.pem_key_cert_pairs.push_back({read_file(f.tls_key, "TLS key"), read_file(f.tls_cert, "TLS certificate")});
     if (!f.tls_client_ca.empty()) o.pem_root_certs = read_file(f.tls_client_ca, "client CA");
     creds = grpc::SslServerCredentials(o);
@@ -93,7 +96,8 @@ int serve(const Flags& f) {
   mo.max_upload_bytes = f.max_upload_mb << 20;
   mo.max_vertices = f.max_vertices;
   brenier::server::Manager manager(store, mo);
-  brenier::server::Service service(manager, std::move(auth));
+  brenier::server::Service service(manager, std::move(auth),
+                                  {.max_watches_per_tenant = f.max_watches, .max_uploads_per_tenant = f.max_uploads});
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
@@ -149,6 +153,8 @@ int main(int argc, char** argv) {
   app.add_option("--queue", f.queue, "queued jobs at most before RESOURCE_EXHAUSTED")->check(CLI::Range(1, 1000000));
   app.add_option("--max-upload-mb", f.max_upload_mb, "largest upload in MiB")->check(CLI::Range(1, 1 << 20));
   app.add_option("--max-vertices", f.max_vertices, "largest mesh in vertices")->check(CLI::Range(3, 100'000'000));
+  app.add_option("--max-watches", f.max_watches, "open WatchJob streams per tenant at most")->check(CLI::Range(1, 100000));
+  app.add_option("--max-uploads", f.max_uploads, "concurrent uploads per tenant at most")->check(CLI::Range(1, 100000));
   app.add_option("--tokens", f.tokens, "file of 'TOKEN TENANT' lines: bearer tokens required");
   app.add_option("--tls-cert", f.tls_cert, "PEM certificate chain (TLS)");
   app.add_option("--tls-key", f.tls_key, "PEM private key (TLS)");

@@ -98,7 +98,7 @@ jobs::MapRequest map_request(const pb::MapSpec& s) {
     r.hole_vertex = s.hole_vertex();
     if (r.hole_vertex < 0) invalid("hole_vertex must be a vertex number");
   }
-  if (s.max_iterations() < 0) invalid("max_iterations must be positive");
+  if (s.max_iterations() < 0 || s.max_iterations() > 100000) invalid("max_iterations must lie in [1, 100000] (0: the default)");
   if (s.max_iterations() > 0) r.max_iterations = s.max_iterations();
   if (!(s.tolerance() >= 0) || !std::isfinite(s.tolerance())) invalid("the tolerance must be a positive number");
   r.tolerance = s.tolerance();
@@ -237,6 +237,7 @@ pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& r
   if (request.request_id().size() > 200) invalid("request_id is longer than 200 characters");
   auto mesh_of = [&](const std::string& id) {
     if (id.empty()) invalid("a mesh id is missing from the spec");
+    if (id.size() > 64) invalid("a mesh id of " + std::to_string(id.size()) + " characters; ids are 64 hex digits");
     auto m = store_.get_mesh(tenant, id);
     if (!m) fail(ErrorCode::kNotFound, "no mesh " + id);
     return *m;
@@ -250,6 +251,9 @@ pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& r
       output_format(s.output_format());
       const pb::Mesh m = mesh_of(s.mesh());
       require_fits(m, s.domain(), s.cut_hole());
+      if (s.weights_size() != 0 && s.weights_size() != m.vertices())
+        invalid(std::to_string(s.weights_size()) + " weights for a mesh of " + std::to_string(m.vertices()) +
+                " vertices (one per input vertex)");
       break;
     }
     case pb::SubmitJobRequest::kDistance: {

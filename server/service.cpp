@@ -21,6 +21,13 @@ int page_size(int requested) {
   return requested == 0 ? 100 : std::min(requested, 1000);
 }
 
+// Every string a client sends that names something is bounded before it is looked up or
+// echoed in a message: mesh ids are 64 hex digits, job ids 32, page tokens a number.
+const std::string& bounded(const std::string& s, const char* what) {
+  if (s.size() > 128) invalid(std::string(what) + " of " + std::to_string(s.size()) + " characters; at most 128");
+  return s;
+}
+
 bool is_sha256(const std::string& s) {
   if (s.size() != 64) return false;
   for (char c : s)
@@ -30,11 +37,30 @@ bool is_sha256(const std::string& s) {
 
 }  // namespace
 
+StreamCaps::Slot StreamCaps::take(const std::string& tenant, const char* kind, int limit) {
+  std::string key = std::string(kind) + "/" + tenant;
+  std::lock_guard<std::mutex> lock(mutex_);
+  int& n = open_[key];
+  if (n >= limit)
+    fail(ErrorCode::kResourceExhausted, "you have " + std::to_string(n) + " " + kind +
+                                            " streams open, the most this server allows per tenant; close one first");
+  ++n;
+  return Slot(this, std::move(key));
+}
+
+StreamCaps::Slot::~Slot() {
+  if (!caps_) return;
+  std::lock_guard<std::mutex> lock(caps_->mutex_);
+  auto it = caps_->open_.find(key_);
+  if (--it->second == 0) caps_->open_.erase(it);
+}
+
 grpc::Status Service::UploadMesh(grpc::ServerContext* ctx, grpc::ServerReader<pb::UploadMeshRequest>* reader,
                                  pb::Mesh* reply) {
   return guarded([&] {
     const std::string tenant = auth_.tenant(ctx);
     if (manager_.shutting_down()) fail(ErrorCode::kUnavailable, "the server is shutting down");
+    const StreamCaps::Slot slot = caps_.take(tenant, "upload", options_.max_uploads_per_tenant);
     pb::UploadMeshRequest msg;
     if (!reader->Read(&msg)) invalid("the upload is empty: the first message must carry the header");
     if (!msg.has_header()) invalid("the first message of an upload must carry the header (name, format, size, sha256)");
@@ -42,6 +68,11 @@ grpc::Status Service::UploadMesh(grpc::ServerContext* ctx, grpc::ServerReader<pb
     if (!is_sha256(h.sha256())) invalid("the header's sha256 must be 64 lower-case hex digits");
     if (h.size_bytes() <= 0) invalid("the header's size_bytes must be positive");
     if (h.name().size() > 256) invalid("the mesh name is longer than 256 characters");
+    // The name becomes part of the results' suggested file names: nothing that leaves a folder.
+    for (char ch : h.name())
+      if (ch == '/' || ch == '\\' || static_cast<unsigned char>(ch) < 0x20 || ch == 0x7f)
+        invalid("the mesh name may not contain '/', '\\' or control characters (give the file's own name)");
+    if (h.name() == "." || h.name() == "..") invalid("the mesh name may not be '.' or '..'");
     const int64_t limit = manager_.options().max_upload_bytes;
     if (h.size_bytes() > limit)
       fail(ErrorCode::kResourceExhausted, "the upload is " + std::to_string(h.size_bytes()) +
@@ -76,7 +107,7 @@ grpc::Status Service::UploadMesh(grpc::ServerContext* ctx, grpc::ServerReader<pb
 
 grpc::Status Service::GetMesh(grpc::ServerContext* ctx, const pb::GetMeshRequest* req, pb::Mesh* reply) {
   return guarded([&] {
-    auto m = manager_.store().get_mesh(auth_.tenant(ctx), req->id());
+    auto m = manager_.store().get_mesh(auth_.tenant(ctx), bounded(req->id(), "an id"));
     if (!m) fail(ErrorCode::kNotFound, "no mesh " + req->id());
     *reply = *m;
     return grpc::Status::OK;
@@ -87,7 +118,7 @@ grpc::Status Service::ListMeshes(grpc::ServerContext* ctx, const pb::ListMeshesR
                                  pb::ListMeshesResponse* reply) {
   return guarded([&] {
     std::string next;
-    for (auto& m : manager_.store().list_meshes(auth_.tenant(ctx), req->page_token(), page_size(req->page_size()), next))
+    for (auto& m : manager_.store().list_meshes(auth_.tenant(ctx), bounded(req->page_token(), "a page_token"), page_size(req->page_size()), next))
       *reply->add_meshes() = std::move(m);
     reply->set_next_page_token(next);
     return grpc::Status::OK;
@@ -96,7 +127,7 @@ grpc::Status Service::ListMeshes(grpc::ServerContext* ctx, const pb::ListMeshesR
 
 grpc::Status Service::DeleteMesh(grpc::ServerContext* ctx, const pb::DeleteMeshRequest* req, pb::DeleteMeshResponse*) {
   return guarded([&] {
-    if (!manager_.store().delete_mesh(auth_.tenant(ctx), req->id())) fail(ErrorCode::kNotFound, "no mesh " + req->id());
+    if (!manager_.store().delete_mesh(auth_.tenant(ctx), bounded(req->id(), "an id"))) fail(ErrorCode::kNotFound, "no mesh " + req->id());
     return grpc::Status::OK;
   });
 }
@@ -110,7 +141,7 @@ grpc::Status Service::SubmitJob(grpc::ServerContext* ctx, const pb::SubmitJobReq
 
 grpc::Status Service::GetJob(grpc::ServerContext* ctx, const pb::GetJobRequest* req, pb::Job* reply) {
   return guarded([&] {
-    *reply = manager_.get(auth_.tenant(ctx), req->id());
+    *reply = manager_.get(auth_.tenant(ctx), bounded(req->id(), "an id"));
     return grpc::Status::OK;
   });
 }
@@ -119,7 +150,7 @@ grpc::Status Service::ListJobs(grpc::ServerContext* ctx, const pb::ListJobsReque
   return guarded([&] {
     const std::string tenant = auth_.tenant(ctx);
     std::string next;
-    for (auto& j : manager_.store().list_jobs(tenant, req->state(), req->page_token(), page_size(req->page_size()), next))
+    for (auto& j : manager_.store().list_jobs(tenant, req->state(), bounded(req->page_token(), "a page_token"), page_size(req->page_size()), next))
       *reply->add_jobs() = manager_.with_progress(std::move(j));
     reply->set_next_page_token(next);
     return grpc::Status::OK;
@@ -128,7 +159,7 @@ grpc::Status Service::ListJobs(grpc::ServerContext* ctx, const pb::ListJobsReque
 
 grpc::Status Service::CancelJob(grpc::ServerContext* ctx, const pb::CancelJobRequest* req, pb::Job* reply) {
   return guarded([&] {
-    *reply = manager_.cancel(auth_.tenant(ctx), req->id());
+    *reply = manager_.cancel(auth_.tenant(ctx), bounded(req->id(), "an id"));
     return grpc::Status::OK;
   });
 }
@@ -137,11 +168,13 @@ grpc::Status Service::WatchJob(grpc::ServerContext* ctx, const pb::WatchJobReque
                                grpc::ServerWriter<pb::JobEvent>* writer) {
   return guarded([&] {
     pb::Job current;
-    std::shared_ptr<LiveJob> l = manager_.live(auth_.tenant(ctx), req->id(), current);
+    const std::string tenant = auth_.tenant(ctx);
+    std::shared_ptr<LiveJob> l = manager_.live(tenant, bounded(req->id(), "an id"), current);
     if (!l) {
       writer->Write(state_event(current));
       return grpc::Status::OK;
     }
+    const StreamCaps::Slot slot = caps_.take(tenant, "watch", options_.max_watches_per_tenant);
     uint64_t next = 0;
     pb::JobEvent first;
     {
@@ -173,7 +206,7 @@ grpc::Status Service::WatchJob(grpc::ServerContext* ctx, const pb::WatchJobReque
 grpc::Status Service::GetResult(grpc::ServerContext* ctx, const pb::GetResultRequest* req,
                                 grpc::ServerWriter<pb::ResultChunk>* writer) {
   return guarded([&] {
-    const pb::Job job = manager_.get(auth_.tenant(ctx), req->id());
+    const pb::Job job = manager_.get(auth_.tenant(ctx), bounded(req->id(), "an id"));
     if (job.state() != pb::SUCCEEDED) {
       std::string why = "job " + job.id() + " is " + pb::JobState_Name(job.state());
       if (job.has_error()) why += ": " + job.error().message();
@@ -181,6 +214,7 @@ grpc::Status Service::GetResult(grpc::ServerContext* ctx, const pb::GetResultReq
     }
     const pb::Artifact* a = nullptr;
     std::string names;
+    bounded(req->artifact(), "an artifact name");
     for (const pb::Artifact& x : job.result().artifacts()) {
       names += (names.empty() ? "" : ", ") + x.name();
       if (req->artifact().empty() ? a == nullptr : x.name() == req->artifact()) a = &x;

@@ -2,15 +2,50 @@
 // and its result or error into a reply (errors through guarded(), status.hpp).
 #pragma once
 
+#include <map>
+#include <mutex>
+#include <string>
+#include <utility>
+
 #include "auth.hpp"
 #include "brenier/v1/brenier.grpc.pb.h"
 #include "manager.hpp"
 
 namespace brenier::server {
 
+struct ServiceOptions {
+  int max_watches_per_tenant = 32;  // concurrent WatchJob streams of one tenant
+  int max_uploads_per_tenant = 8;   // concurrent UploadMesh streams of one tenant
+};
+
+/// Per-tenant counts of open streams: a tenant cannot hold every handler thread (or every
+/// upload's memory) of the server, whatever the others do.
+class StreamCaps {
+ public:
+  /// Counts one more stream of `tenant` of this kind, or fails with kResourceExhausted when
+  /// it already holds `limit`; the returned guard gives the place back.
+  class Slot {
+   public:
+    Slot(StreamCaps* caps, std::string key) : caps_(caps), key_(std::move(key)) {}
+    Slot(Slot&& o) noexcept : caps_(std::exchange(o.caps_, nullptr)), key_(std::move(o.key_)) {}
+    Slot& operator=(Slot&&) = delete;
+    ~Slot();
+
+   private:
+    StreamCaps* caps_;
+    std::string key_;
+  };
+  Slot take(const std::string& tenant, const char* kind, int limit);
+
+ private:
+  std::mutex mutex_;
+  std::map<std::string, int> open_;  // "kind/tenant" -> streams open
+};
+
 class Service final : public pb::Brenier::Service {
  public:
-  Service(Manager& manager, Auth auth) : manager_(manager), auth_(std::move(auth)) {}
+  Service(Manager& manager, Auth auth, ServiceOptions options = {})
+      : manager_(manager), auth_(std::move(auth)), options_(options) {}
 
   grpc::Status UploadMesh(grpc::ServerContext* ctx, grpc::ServerReader<pb::UploadMeshRequest>* reader,
                           pb::Mesh* reply) override;
@@ -31,6 +66,8 @@ class Service final : public pb::Brenier::Service {
  private:
   Manager& manager_;
   Auth auth_;
+  ServiceOptions options_;
+  StreamCaps caps_;
 };
 
 }  // namespace brenier::server

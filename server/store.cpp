@@ -5,6 +5,7 @@
 #include <sqlite3.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <filesystem>
 #include <fstream>
@@ -194,13 +195,22 @@ std::string Store::temp_path() {
          std::to_string(counter.fetch_add(1));
 }
 
+namespace {
+bool is_sha256_hex(const std::string& s) {
+  return s.size() == 64 && std::all_of(s.begin(), s.end(), [](char c) { return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'); });
+}
+}  // namespace
+
+// Blob paths are made only of SHA-256 digests: nothing a client sends can name a file
+// outside DIR/blobs.
 std::string Store::blob_path(Blob kind, const std::string& sha) const {
+  if (!is_sha256_hex(sha)) fail(ErrorCode::kInvalidArgument, "'" + sha.substr(0, 80) + "' is not a SHA-256 digest");
   return dir_ + (kind == Blob::kMesh ? "/blobs/meshes/" : "/blobs/results/") + sha.substr(0, 2) + "/" + sha;
 }
 
 bool Store::has_blob(Blob kind, const std::string& sha) const {
   std::error_code ec;
-  return sha.size() == 64 && fs::exists(blob_path(kind, sha), ec);
+  return is_sha256_hex(sha) && fs::exists(blob_path(kind, sha), ec);
 }
 
 void Store::commit_blob(Blob kind, const std::string& temp, const std::string& sha) {

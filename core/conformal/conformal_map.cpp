@@ -215,7 +215,10 @@ int untangle(const mesh::TriMesh& m, mesh::Vertices& X, bool sphere, const std::
       }
     if (folded == 0 || todo.empty() || round == max_rounds) break;
     bool any = false;
-    for (auto [v, f] : todo) {
+    for (const auto& corner : todo) {
+      // Named copies, not a structured binding: C++20 lambdas (longest, below) may not
+      // capture structured bindings (clang 14 refuses them).
+      const int v = corner.first, f = corner.second;
       if (!face_folded(m, X, f, sphere)) continue;  // fixed meanwhile
       const Eigen::RowVector3d old = X.row(v);
       const int before = folded_around(v);

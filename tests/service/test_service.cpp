@@ -10,6 +10,7 @@
 #include <set>
 #include <sstream>
 #include <thread>
+#include <sys/wait.h>
 
 #include "common/error.hpp"
 #include "distance/matrix.hpp"
@@ -667,6 +668,17 @@ TEST(Service, TenantsSeeOnlyTheirOwnMeshesAndJobs) {
   const std::string data = temp_dir("svc-tenants");
   const std::string tokens = data + "-tokens.txt";
   std::ofstream(tokens) << "# token tenant\nalice-token-0123456789 alice\nbob-token-0123456789abc bob\n";
+  // A tokens file others may read is refused, naming the fix.
+  std::filesystem::permissions(tokens, std::filesystem::perms(0644));
+  const std::string out = data + "-refused.txt";
+  const int rc = std::system((std::string(BRENIERD) + " --listen 127.0.0.1:0 --data " + data + "-x --tokens " + tokens +
+                              " 2> " + out).c_str());
+  EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << rc;
+  std::ifstream err(out);
+  const std::string line((std::istreambuf_iterator<char>(err)), {});
+  EXPECT_NE(line.find("open to group or others (mode 0644)"), std::string::npos) << line;
+  EXPECT_NE(line.find("chmod 600"), std::string::npos) << line;
+  std::filesystem::permissions(tokens, std::filesystem::perms(0600));
   ServerProcess server(data, {"--tokens", tokens});
   Client alice = server.client("alice-token-0123456789"), bob = server.client("bob-token-0123456789abc");
   const std::string m = alice.upload_bytes(hemisphere(), "hemi").id();
@@ -691,6 +703,94 @@ TEST(Service, TenantsSeeOnlyTheirOwnMeshesAndJobs) {
   EXPECT_EQ(server.health(), 1);  // health needs no token
 }
 
+// What a client sends is bounded and checked before it is used: the code and the message.
+TEST(Service, NamesIdsAndCountsFromClientsAreBounded) {
+  ServerProcess server(temp_dir("svc-bounds"));
+  Client c = server.client();
+  auto status_of = [](const std::function<void()>& f) {
+    try {
+      f();
+    } catch (const client::Error& e) {
+      return std::make_pair(e.code(), std::string(e.what()));
+    }
+    return std::make_pair(grpc::StatusCode::OK, std::string());
+  };
+  auto expect = [](const std::pair<grpc::StatusCode, std::string>& got, grpc::StatusCode code, const char* words) {
+    EXPECT_EQ(got.first, code) << got.second;
+    EXPECT_NE(got.second.find(words), std::string::npos) << got.second;
+  };
+  expect(status_of([&] { c.upload_bytes(hemisphere(), "../../etc/h.off"); }), grpc::StatusCode::INVALID_ARGUMENT,
+         "may not contain '/'");
+  expect(status_of([&] { c.upload_bytes(hemisphere(), std::string("a\nb.off")); }), grpc::StatusCode::INVALID_ARGUMENT,
+         "control characters");
+  expect(status_of([&] { c.upload_bytes(hemisphere(), ".."); }), grpc::StatusCode::INVALID_ARGUMENT, "'.' or '..'");
+  expect(status_of([&] { c.get(std::string(4000, 'a')); }), grpc::StatusCode::INVALID_ARGUMENT,
+         "an id of 4000 characters");
+  expect(status_of([&] { c.get_mesh(std::string(200, '.')); }), grpc::StatusCode::INVALID_ARGUMENT, "at most 128");
+  const std::string id = c.upload_bytes(hemisphere(), "h.off").id();
+  pb::SubmitJobRequest w = map_spec(id, pb::DISK, pb::AREA_PRESERVING);
+  for (int k = 0; k < 7; ++k) w.mutable_map()->add_weights(1.0);
+  expect(status_of([&] { c.submit(w); }), grpc::StatusCode::INVALID_ARGUMENT, "7 weights for a mesh of");
+  pb::SubmitJobRequest it = map_spec(id, pb::DISK, pb::CONFORMAL);
+  it.mutable_map()->set_max_iterations(1 << 30);
+  expect(status_of([&] { c.submit(it); }), grpc::StatusCode::INVALID_ARGUMENT, "max_iterations must lie in");
+  pb::SubmitJobRequest long_id = map_spec(std::string(65, 'f'), pb::DISK, pb::CONFORMAL);
+  expect(status_of([&] { c.submit(long_id); }), grpc::StatusCode::INVALID_ARGUMENT, "ids are 64 hex digits");
+  EXPECT_EQ(server.health(), 1);
+}
+
+TEST(Service, ATenantsOpenWatchesAndUploadsAreCapped) {
+  ServerProcess server(temp_dir("svc-caps"), {"--max-watches", "2", "--max-uploads", "1"});
+  Client c = server.client();
+  const std::string id = c.upload_bytes(big_hemisphere(), "big").id();
+  const pb::Job j = c.submit(map_spec(id, pb::DISK, pb::AREA_PRESERVING));
+  auto stub = pb::Brenier::NewStub(grpc::CreateChannel(server.address(), grpc::InsecureChannelCredentials()));
+  // Two watches held open: their first event has arrived, so the server counts them.
+  std::vector<std::unique_ptr<grpc::ClientContext>> ctxs;
+  std::vector<std::unique_ptr<grpc::ClientReader<pb::JobEvent>>> open;
+  pb::WatchJobRequest w;
+  w.set_id(j.id());
+  for (int k = 0; k < 3; ++k) {
+    ctxs.push_back(std::make_unique<grpc::ClientContext>());
+    open.push_back(stub->WatchJob(ctxs.back().get(), w));
+    pb::JobEvent e;
+    if (k < 2) {
+      ASSERT_TRUE(open.back()->Read(&e)) << "watch " << k;
+    }
+  }
+  pb::JobEvent e;
+  EXPECT_FALSE(open[2]->Read(&e));
+  const grpc::Status third = open[2]->Finish();
+  EXPECT_EQ(third.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << third.error_message();
+  EXPECT_NE(third.error_message().find("2 watch streams open"), std::string::npos) << third.error_message();
+  // One upload stream held open (header sent, body not finished): a second one is refused.
+  grpc::ClientContext up_ctx;
+  pb::Mesh reply;
+  auto up = stub->UploadMesh(&up_ctx, &reply);
+  pb::UploadMeshRequest head;
+  head.mutable_header()->set_name("h.off");
+  head.mutable_header()->set_size_bytes(static_cast<int64_t>(hemisphere().size()));
+  head.mutable_header()->set_sha256(client::sha256_hex(hemisphere()));
+  ASSERT_TRUE(up->Write(head));
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));  // the server has read the header
+  EXPECT_EQ(code_of([&] { c.upload_bytes(hemisphere(), "h.off"); }), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  pb::UploadMeshRequest body;
+  body.set_chunk(hemisphere());
+  ASSERT_TRUE(up->Write(body));
+  up->WritesDone();
+  EXPECT_TRUE(up->Finish().ok());
+  // Places come back when streams end: cancel the job, the watches end, new ones are taken.
+  c.cancel(j.id());
+  for (int k = 0; k < 2; ++k) {
+    while (open[k]->Read(&e)) {
+    }
+    EXPECT_TRUE(open[k]->Finish().ok());
+  }
+  EXPECT_EQ(c.upload_bytes(hemisphere(), "again.off").id(), client::sha256_hex(hemisphere()));
+  EXPECT_EQ(c.watch(j.id()).state(), pb::CANCELLED);
+  EXPECT_EQ(server.health(), 1);
+}
+
 TEST(Service, TlsWithAClientCertificate) {
   const std::string dir = temp_dir("svc-tls");
   // A CA, a server certificate for 127.0.0.1 and a client certificate, made by openssl.
@@ -700,7 +800,8 @@ TEST(Service, TlsWithAClientCertificate) {
                              " && printf 'subjectAltName=IP:127.0.0.1,DNS:localhost' > ext.cnf"
                              " && openssl x509 -req -in server.csr -CA ca.pem -CAkey ca.key -CAcreateserial -days 2 -extfile ext.cnf -out server.pem"
                              " && openssl req -newkey rsa:2048 -nodes -subj /CN=client -keyout client.key -out client.csr"
-                             " && openssl x509 -req -in client.csr -CA ca.pem -CAkey ca.key -CAcreateserial -days 2 -out client.pem";
+                             " && openssl x509 -req -in client.csr -CA ca.pem -CAkey ca.key -CAcreateserial -days 2 -out client.pem"
+                             " && chmod 600 server.key";
   ASSERT_EQ(std::system((script + " > /dev/null 2>&1").c_str()), 0);
   ServerProcess server(dir + "/data", {"--tls-cert", dir + "/server.pem", "--tls-key", dir + "/server.key",
                                        "--tls-client-ca", dir + "/ca.pem"});
@@ -721,6 +822,12 @@ TEST(Service, TlsWithAClientCertificate) {
   plain.server = server.address();
   plain.call_timeout = 5;
   EXPECT_NE(code_of([&] { Client(plain).list_meshes(); }), grpc::StatusCode::OK);
+  // TLS 1.2 at least: a TLS 1.1 handshake is refused by the server (the client side lowers
+  // OpenSSL's security level so that it would offer 1.1 at all), a 1.2 one goes through.
+  const std::string s_client = "openssl s_client -connect " + server.address() + " -CAfile " + dir +
+                               "/ca.pem -cert " + dir + "/client.pem -key " + dir + "/client.key -alpn h2 ";
+  EXPECT_NE(std::system((s_client + "-tls1_1 -cipher DEFAULT:@SECLEVEL=0 < /dev/null > /dev/null 2>&1").c_str()), 0);
+  EXPECT_EQ(std::system((s_client + "-tls1_2 < /dev/null > /dev/null 2>&1").c_str()), 0);
 }
 
 TEST(Service, ReflectionListsTheServices) {
