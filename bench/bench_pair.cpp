@@ -12,6 +12,7 @@
 
 #include "common/error.hpp"
 #include "common/parallel.hpp"
+#include "process.hpp"
 #include "distance/distance.hpp"
 #include "jobs/jobs.hpp"
 #include "mesh/validate.hpp"
@@ -19,8 +20,8 @@
 using namespace brenier;
 
 int main(int argc, char** argv) {
-  reexec_with_passive_openmp(argv);  // as the tools run
-  tune_allocator();
+  process::reexec_with_passive_openmp(argv);  // as the tools run
+  process::tune_allocator();
   if (argc < 3) {
     std::fprintf(stderr, "usage: bench_pair A B [repeats] [threads]\n");
     return 2;

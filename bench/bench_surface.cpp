@@ -11,14 +11,15 @@
 #include <vector>
 
 #include "common/parallel.hpp"
+#include "process.hpp"
 #include "mesh/shapes.hpp"
 #include "omt/surface_cells.hpp"
 
 using namespace brenier;
 
 int main(int argc, char** argv) {
-  reexec_with_passive_openmp(argv);
-  tune_allocator();
+  process::reexec_with_passive_openmp(argv);
+  process::tune_allocator();
   const int density_level = argc > 1 ? std::atoi(argv[1]) : 5;
   const int site_level = argc > 2 ? std::atoi(argv[2]) : 4;
   const int repeats = argc > 3 ? std::atoi(argv[3]) : 5;

@@ -161,7 +161,7 @@ int main(int argc, char** argv) {
     std::vector<int> markers;
     double t = 0, tolerance = 0;
     int hole_vertex = -1, max_iterations = 0;
-    bool cut = false, no_wait = false;
+    bool cut = false, no_wait = false, allow_flips = false;
   } m;
   auto* map = app.add_subcommand("map", "map a mesh (file or id) onto the unit disk or sphere");
   map->add_option("mesh", m.mesh, "mesh file or id")->required();
@@ -178,6 +178,7 @@ int main(int argc, char** argv) {
       ->check(CLI::NonNegativeNumber);
   map->add_option("--max-iterations", m.max_iterations, "Newton iterations")->check(CLI::PositiveNumber);
   map->add_option("--tolerance", m.tolerance, "solver tolerance (default: the method's)")->check(CLI::PositiveNumber);
+  map->add_flag("--allow-flips", m.allow_flips, "return a map even if it folds faces");
   map->add_flag("--no-wait", m.no_wait, "print the job and return at once");
   map->callback([&] {
     action = [&](Client& c) {
@@ -190,6 +191,7 @@ int main(int argc, char** argv) {
       s->set_cut_hole(m.cut);
       s->set_tolerance(m.tolerance);
       s->set_max_iterations(m.max_iterations);
+      s->set_allow_flips(m.allow_flips);
       if (m.hole_vertex >= 0) {
         s->set_has_hole_vertex(true);
         s->set_hole_vertex(m.hole_vertex);

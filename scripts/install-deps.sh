@@ -24,6 +24,10 @@ PACKAGES=(
   # Service tests: a Python client generated from our proto (protoc's grpc python plugin),
   # and openssl to make the TLS test's certificates.
   python3-grpcio python3-protobuf openssl
+  # Sanitizer and fuzz builds (scripts/test.sh --sanitize, scripts/fuzz.sh): clang with its
+  # sanitizer and libFuzzer runtimes, LLVM's OpenMP runtime (with Archer, which tells TSan
+  # about OpenMP's synchronization) and llvm-symbolizer for readable reports.
+  clang libclang-rt-14-dev libomp-14-dev llvm-14
 )
 
 missing=()

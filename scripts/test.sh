@@ -57,7 +57,7 @@ sanitized() {  # $1: address or thread
     export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1:detect_stack_use_after_return=1"
     export LSAN_OPTIONS="suppressions=$SUPP/lsan.supp:print_suppressions=0"
     # OpenMP's own synchronization is invisible to TSan unless libomp's Archer tool reports it.
-    export TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:suppressions=$SUPP/tsan.supp"
+    export TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:ignore_noninstrumented_modules=1:suppressions=$SUPP/tsan.supp"
     export OMP_TOOL_LIBRARIES=/usr/lib/llvm-14/lib/libarcher.so
     if [[ $kind == address ]]; then
       ctest --output-on-failure -j "$JOBS" --timeout 1500 \

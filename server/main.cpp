@@ -18,6 +18,7 @@
 #include "auth.hpp"
 #include "common/error.hpp"
 #include "common/parallel.hpp"
+#include "process.hpp"
 #include "manager.hpp"
 #include "service.hpp"
 
@@ -90,6 +91,7 @@ int serve(const Flags& f) {
   }
 
   brenier::server::Store store(f.data);
+  if (const int swept = store.sweep_orphaned_blobs()) spdlog::info("removed {} orphaned blobs", swept);
   brenier::server::ManagerOptions mo;
   mo.workers = f.workers;
   mo.queue = f.queue;
@@ -141,8 +143,8 @@ int serve(const Flags& f) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  brenier::reexec_with_passive_openmp(argv);
-  brenier::tune_allocator();
+  brenier::process::reexec_with_passive_openmp(argv);
+  brenier::process::tune_allocator();
   install_stop_handlers();
   CLI::App app{"brenierd: conformal maps, optimal-transport maps and shape distances as a gRPC service"};
   Flags f;

@@ -105,6 +105,7 @@ jobs::MapRequest map_request(const pb::MapSpec& s) {
   r.weights.assign(s.weights().begin(), s.weights().end());
   if (!(s.t() >= 0 && s.t() <= 1)) invalid("t must lie in [0, 1]");
   r.t = s.t();
+  r.allow_flips = s.allow_flips();
   if (r.method == "conformal" && (r.t > 0 || !r.weights.empty()))
     invalid("t and weights apply to the area-preserving method");
   return r;
@@ -228,7 +229,7 @@ pb::Mesh Manager::add_mesh(const std::string& tenant, const pb::UploadMeshReques
   m.set_boundary_loops(t.boundary_loops);
   m.set_genus(t.genus);
   *m.mutable_created() = TimeUtil::GetCurrentTime();
-  for (const auto& p : cm.report.problems) m.add_warnings(p.message);
+  for (const auto& p : cm.report.problems) m.add_warnings(name_options(p.message, OptionStyle::kField));
   return store_.put_mesh_with_blob(tenant, m, bytes);
 }
 
@@ -707,7 +708,7 @@ void Manager::run(const std::string& id) {
       job.set_state(pb::FAILED);
       job.set_stage("failed");
       job.mutable_error()->set_code(static_cast<int>(status_code(error->code())));
-      job.mutable_error()->set_message(error->what());
+      job.mutable_error()->set_message(client_message(*error));
     }
     *job.mutable_finished() = TimeUtil::GetCurrentTime();
     store_.update_job(job);

@@ -27,11 +27,13 @@ std::string one_line(std::string s) {
 }
 }  // namespace
 
+std::string client_message(const Error& e) { return one_line(name_options(e.what(), OptionStyle::kField)); }
+
 grpc::Status to_status(std::exception_ptr e) {
   try {
     std::rethrow_exception(e);
   } catch (const Error& x) {
-    return {status_code(x.code()), one_line(x.what())};
+    return {status_code(x.code()), client_message(x)};
   } catch (const std::bad_alloc&) {
     return {grpc::StatusCode::RESOURCE_EXHAUSTED, "out of memory"};
   } catch (const std::exception& x) {

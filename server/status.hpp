@@ -18,6 +18,8 @@ namespace brenier::server {
 grpc::Status to_status(std::exception_ptr e);
 /// The code a failed job reports (google.rpc.Code numbers, as grpc::StatusCode).
 grpc::StatusCode status_code(ErrorCode code);
+/// An error's message as a client sees it: one line, options named as request fields.
+std::string client_message(const Error& e);
 
 /// Runs body; any exception becomes its status.
 inline grpc::Status guarded(const std::function<grpc::Status()>& body) {

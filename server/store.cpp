@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <set>
 
 #include "common/error.hpp"
 #include "common/hash.hpp"
@@ -179,6 +180,36 @@ Store::Store(const std::string& dir) : dir_(dir) {
 
 Store::~Store() = default;
 
+// A blob is written before the row that names it (so a row never names missing bytes); a
+// kill -9 between the two leaves a blob nothing names: a mesh upload that was never
+// acknowledged, or the artifacts of a job run that is then run again (a report holding its
+// timings hashes differently each run). Swept at start, before any request is served.
+int Store::sweep_orphaned_blobs() {
+  std::set<std::string> named_meshes, named_results;
+  {
+    std::lock_guard<std::mutex> lock(writer_.mutex);
+    Stmt m(writer_, "SELECT DISTINCT id FROM meshes");
+    while (m.step()) named_meshes.insert(m.column_text(0));
+    Stmt j(writer_, "SELECT record FROM jobs");
+    while (j.step()) {
+      const pb::Job job = parse<pb::Job>(j.column_blob(0));  // named: a range-for keeps only its last temporary
+      for (const pb::Artifact& a : job.result().artifacts()) named_results.insert(a.sha256());
+    }
+  }
+  int removed = 0;
+  for (const auto& [kind, named] : {std::pair{Blob::kMesh, &named_meshes}, std::pair{Blob::kResult, &named_results}}) {
+    const std::string root = blob_root(kind);
+    std::error_code ec;
+    for (auto it = fs::recursive_directory_iterator(root, ec); !ec && it != fs::recursive_directory_iterator();
+         it.increment(ec)) {
+      if (!it->is_regular_file(ec) || named->count(it->path().filename().string())) continue;
+      std::error_code rm;
+      if (fs::remove(it->path(), rm)) ++removed;
+    }
+  }
+  return removed;
+}
+
 void Store::exec(const char* sql) {
   char* err = nullptr;
   if (sqlite3_exec(writer_.db, sql, nullptr, nullptr, &err) != SQLITE_OK) {
@@ -201,11 +232,15 @@ bool is_sha256_hex(const std::string& s) {
 }
 }  // namespace
 
+std::string Store::blob_root(Blob kind) const {
+  return dir_ + (kind == Blob::kMesh ? "/blobs/meshes" : "/blobs/results");
+}
+
 // Blob paths are made only of SHA-256 digests: nothing a client sends can name a file
 // outside DIR/blobs.
 std::string Store::blob_path(Blob kind, const std::string& sha) const {
   if (!is_sha256_hex(sha)) fail(ErrorCode::kInvalidArgument, "'" + sha.substr(0, 80) + "' is not a SHA-256 digest");
-  return dir_ + (kind == Blob::kMesh ? "/blobs/meshes/" : "/blobs/results/") + sha.substr(0, 2) + "/" + sha;
+  return blob_root(kind) + "/" + sha.substr(0, 2) + "/" + sha;
 }
 
 bool Store::has_blob(Blob kind, const std::string& sha) const {

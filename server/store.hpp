@@ -71,6 +71,9 @@ class Store {
   void update_job(const pb::Job& job);
   /// Removes a job row (a submission the full queue refused).
   void delete_job(const std::string& id);
+  /// Removes the blobs no mesh row or job artifact names (left by a kill between a blob and
+  /// its row); returns how many. Call before serving.
+  int sweep_orphaned_blobs();
   /// Queued and running jobs of every tenant, oldest first.
   std::vector<std::string> unfinished_jobs();
 
@@ -87,6 +90,7 @@ class Store {
  private:
   void exec(const char* sql);
   std::string write_temp(const std::string& bytes);
+  std::string blob_root(Blob kind) const;
   void commit_blob(Blob kind, const std::string& temp, const std::string& sha256);
   /// A reader connection, locked for the caller: WAL lets reads run beside the one writer,
   /// so a GetJob or a submission's mesh lookup never waits behind a job's commit.

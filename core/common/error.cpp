@@ -17,4 +17,28 @@ const char* error_code_name(ErrorCode code) {
   return "unknown";
 }
 
+std::string name_options(std::string_view m, OptionStyle style) {
+  std::string out;
+  out.reserve(m.size() + 16);
+  for (size_t i = 0; i < m.size(); ++i) {
+    if (m[i] == '{') {
+      size_t j = i + 1;
+      while (j < m.size() && ((m[j] >= 'a' && m[j] <= 'z') || m[j] == '_')) ++j;
+      if (j < m.size() && m[j] == '}' && j > i + 1) {
+        std::string name(m.substr(i + 1, j - i - 1));
+        if (style == OptionStyle::kFlag) {
+          for (char& c : name)
+            if (c == '_') c = '-';
+          out += "--";
+        }
+        out += name;
+        i = j;
+        continue;
+      }
+    }
+    out += m[i];
+  }
+  return out;
+}
+
 }  // namespace brenier

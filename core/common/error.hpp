@@ -5,6 +5,7 @@
 
 #include <stdexcept>
 #include <string>
+#include <string_view>
 
 namespace brenier {
 
@@ -21,6 +22,15 @@ enum class ErrorCode {
 };
 
 const char* error_code_name(ErrorCode code);
+
+/// Core messages name an option of a request by its field in braces, "{allow_flips}" (the
+/// field of jobs::MapRequest or ShapeRequest, and of the proto's specs), never by a command-
+/// line flag: each front end names options its own way, in the one place it prints errors.
+enum class OptionStyle {
+  kFlag,   // "--allow-flips" (brenier-compute)
+  kField,  // "allow_flips" (gRPC status messages and job errors)
+};
+std::string name_options(std::string_view message, OptionStyle style);
 
 class Error : public std::runtime_error {
  public:

@@ -1,8 +1,6 @@
 #include "common/parallel.hpp"
 
 #include <dlfcn.h>
-#include <malloc.h>
-#include <unistd.h>
 
 #include <cstdlib>
 #include <omp.h>
@@ -22,17 +20,6 @@ void single_threaded_blas() {
     using SetThreads = void (*)(int);
     if (auto set = reinterpret_cast<SetThreads>(dlsym(RTLD_DEFAULT, "openblas_set_num_threads"))) set(1);
   });
-}
-
-void reexec_with_passive_openmp(char** argv) {
-  if (std::getenv("OMP_WAIT_POLICY") != nullptr) return;
-  ::setenv("OMP_WAIT_POLICY", "passive", 1);
-  ::execv("/proc/self/exe", argv);  // returns only on failure: then run as we are
-}
-
-void tune_allocator() {
-  mallopt(M_TRIM_THRESHOLD, 32 << 20);
-  mallopt(M_MMAP_THRESHOLD, 16 << 20);
 }
 
 int hardware_threads() { return std::max(1u, std::thread::hardware_concurrency()); }

@@ -104,7 +104,7 @@ std::vector<Complex> layout(const IntrinsicTriangulation& T, const Eigen::Vector
            "scales span a factor of " +
                std::to_string(std::exp(0.5 * (u.maxCoeff() - u.minCoeff()))) +
                "), so it cannot be written as coordinates; a hole or puncture nearer to the "
-               "long protrusions helps (--hole-vertex)");
+               "long protrusions helps ({hole_vertex})");
     dir /= n;
     pos[r] = pos[p] + c * dir * std::polar(1.0, alpha);
     placed[r] = 1;

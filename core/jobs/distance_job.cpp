@@ -58,7 +58,7 @@ distance::ShapeInput shape_input(const mesh::CleanMesh& cm, const std::string& n
   } else if (t.mesh_class != mesh::MeshClass::kDisk) {
     invalid(what + ": is a " + std::string(mesh::class_name(t.mesh_class)) +
             " mesh; shape distances on the disk need topological disks" +
-            (t.mesh_class == mesh::MeshClass::kSphere ? " (pass --cut-hole, or cut_hole to the service, to open it)" : ""));
+            (t.mesh_class == mesh::MeshClass::kSphere ? " (set {cut_hole} to open it)" : ""));
   }
   auto marker = [&](int v, const char* kind) {
     if (v < 0 || v >= cm.input_vertices || to_clean[v] < 0)

@@ -34,7 +34,7 @@ nlohmann::json problems_json(const mesh::Report& report) {
   for (const auto& p : report.problems)
     out.push_back({{"severity", p.severity == mesh::Problem::Severity::kError ? "error" : "warning"},
                    {"code", p.code},
-                   {"message", p.message},
+                   {"message", name_options(p.message, OptionStyle::kField)},
                    {"count", p.count}});
   return out;
 }
@@ -197,12 +197,12 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
       why = buf;
     }
     fail(ErrorCode::kNotConverged, what + ": the map folds " + std::to_string(q.flipped_faces) + " faces (first: " + list +
-                                       ")" + why + "; pass --allow-flips to write it anyway");
+                                       ")" + why + "; set {allow_flips} to write it anyway");
   }
 
   if (!quality::covers_once(q.degree) && !o.allow_flips) {
     char buf[160];
-    std::snprintf(buf, sizeof buf, ": the map covers the sphere %.0f times, so it is no bijection; pass --allow-flips to write it anyway",
+    std::snprintf(buf, sizeof buf, ": the map covers the sphere %.0f times, so it is no bijection; set {allow_flips} to write it anyway",
                   q.degree);
     fail(ErrorCode::kNotConverged, what + buf);
   }

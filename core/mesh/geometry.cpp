@@ -120,7 +120,7 @@ int default_hole_vertex(const TriMesh& m) {
 CutHole cut_hole(const TriMesh& m, std::optional<int> v) {
   Topology t = compute_topology(m);
   if (t.mesh_class != MeshClass::kSphere)
-    invalid("--cut-hole needs a closed genus-0 surface; this mesh is " +
+    invalid("cutting a hole ({cut_hole}) needs a closed genus-0 surface; this mesh is " +
             std::string(class_name(t.mesh_class)) + " (genus " + std::to_string(t.genus) + ", " +
             std::to_string(t.boundary_loops) + " boundary loops)");
   int hole = v ? *v : default_hole_vertex(m);

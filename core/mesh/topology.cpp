@@ -172,7 +172,7 @@ std::string domain_mismatch(const Topology& t, Domain d) {
     if (t.mesh_class == MeshClass::kDisk) return {};
     if (t.mesh_class == MeshClass::kSphere)
       return "the disk domain needs a topological disk but the mesh is a closed genus-0 surface "
-             "(open it with --cut-hole)";
+             "(open it with {cut_hole})";
     return "the disk domain needs a topological disk (genus 0, one boundary loop) but the mesh is " +
            describe();
   }

@@ -129,7 +129,7 @@ void check_trimesh(CleanMesh& cm, const CleanOptions& opt) {
       }
       r.error("several_components",
               "mesh has " + std::to_string(comps.size()) + " connected components (faces: " +
-                  sizes.str() + "); keep the largest with --keep-largest",
+                  sizes.str() + "); keep the largest with {keep_largest}",
               static_cast<int64_t>(comps.size()));
     }
   }
@@ -360,7 +360,7 @@ void check_trimesh(CleanMesh& cm, const CleanOptions& opt) {
               first_dir +
                   (same_dir > 1 ? "; " + plural(same_dir, "such edge", "such edges") + " in all"
                                 : std::string()) +
-                  "; fix with --fix-orientation",
+                  "; fix with {fix_orientation}",
               same_dir);
     }
   }
@@ -510,7 +510,7 @@ CleanMesh clean(const PolygonSoup& soup, const CleanOptions& opt) {
       } else {
         r.warn("duplicate_vertices",
                first + "; " + plural(dups, "duplicate vertex", "duplicate vertices") +
-                   " in all (merge them with --merge-duplicates)",
+                   " in all (merge them with {merge_duplicates})",
                dups);
       }
     }

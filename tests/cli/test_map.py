@@ -118,13 +118,15 @@ if rc == 0:
     check(d["omt"]["start"] == "spread" and d["omt"]["spreading_stages"] >= 1, f"camel start {d['omt']}")
     check(d["quality"]["flipped_faces"] == 0 and abs(d["quality"]["degree"] - 1) < 1e-6, f"camel quality {d['quality']}")
     check(d["omt"]["max_relative_area_error"] <= 1e-8, f"camel omt error {d['omt']['max_relative_area_error']}")
-# cactus's conformal map is not crowded, but its own centroid map keeps folds: the spread
-# start maps it bijectively.
+# cactus's conformal map is not crowded, but on some processors its own centroid map keeps
+# folds (the round-off of the BLAS kernel decides): then the spread start maps it. Either
+# way the map must be a bijection that keeps areas.
 rc, so, se = run("map", os.path.join(data, "cactus.off"), "--domain", "sphere", "--method", "area-preserving", "--json")
 check(rc == 0, f"cactus sphere area-preserving: exit {rc}, stderr {se!r}")
 if rc == 0:
     d = json.loads(so)
-    check(d["omt"]["start"] == "spread", f"cactus start {d['omt']}")
+    check(d["omt"]["start"] in ("conformal", "spread") and d["omt"]["max_relative_area_error"] <= 1e-8,
+          f"cactus omt {d['omt']}")
     check(d["quality"]["flipped_faces"] == 0 and abs(d["quality"]["degree"] - 1) < 1e-6, f"cactus quality {d['quality']}")
 # A map that keeps folds is refused with exit 3 and one line naming them: u's 86 vertices
 # with every fifth weighted 1e5 (region-of-interest weights far beyond any use) leave

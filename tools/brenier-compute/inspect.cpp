@@ -76,7 +76,7 @@ int run_inspect(const InspectOptions& o) {
     }
     for (const auto& p : cm.report.problems)
       std::cout << (p.severity == mesh::Problem::Severity::kError ? "error:   " : "warning: ")
-                << p.code << ": " << p.message << "\n";
+                << p.code << ": " << name_options(p.message, OptionStyle::kFlag) << "\n";
     if (!domain_error.empty()) std::cout << "error:   domain: " << domain_error << "\n";
     std::cout << "valid:          " << (valid ? "yes" : "no") << std::endl;
   }

@@ -8,6 +8,7 @@
 #include "commands.hpp"
 #include "common/error.hpp"
 #include "common/parallel.hpp"
+#include "process.hpp"
 
 namespace {
 
@@ -38,8 +39,8 @@ int exit_code_for(brenier::ErrorCode code) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  brenier::reexec_with_passive_openmp(argv);
-  brenier::tune_allocator();
+  brenier::process::reexec_with_passive_openmp(argv);
+  brenier::process::tune_allocator();
   CLI::App app{"brenier-compute: conformal and optimal-mass-transport maps of surfaces"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "brenier-compute 0.1.0");
@@ -63,7 +64,7 @@ int main(int argc, char** argv) {
     return action ? action() : brenier::tools::kExitOk;
   } catch (const brenier::Error& e) {
     const char* kind = e.code() == brenier::ErrorCode::kInternal ? "internal error: " : "";
-    return report(kind, e.what(), exit_code_for(e.code()));
+    return report(kind, brenier::name_options(e.what(), brenier::OptionStyle::kFlag), exit_code_for(e.code()));
   } catch (const std::bad_alloc&) {
     return report("", "out of memory", brenier::tools::kExitFailure);
   } catch (const std::exception& e) {
