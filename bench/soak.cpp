@@ -223,8 +223,11 @@ class Soaker {
       } catch (const brenier::client::Error& e) {
         tally_.count("call", e.code());
         tally_.note(e.code(), e.what());
-        if (e.code() == grpc::StatusCode::UNAVAILABLE || e.code() == grpc::StatusCode::DEADLINE_EXCEEDED)
-          std::this_thread::sleep_for(std::chrono::milliseconds(200));  // the server is restarting
+        // Back off as a client should: the server is restarting, or its queue or our share of
+        // its upload streams is full.
+        if (e.code() == grpc::StatusCode::UNAVAILABLE || e.code() == grpc::StatusCode::DEADLINE_EXCEEDED ||
+            e.code() == grpc::StatusCode::RESOURCE_EXHAUSTED)
+          std::this_thread::sleep_for(std::chrono::milliseconds(std::uniform_int_distribution<int>(100, 500)(rng)));
         if (e.code() == grpc::StatusCode::NOT_FOUND && std::string(e.what()).find("no mesh") != std::string::npos) {
           // Another try of an upload's GetMesh raced a delete: forget the ids and go on.
           disks.clear();

@@ -13,6 +13,8 @@
 #include <fstream>
 #include <thread>
 #include <cerrno>
+#include <fcntl.h>
+#include <pthread.h>
 #include <unistd.h>
 
 #include "auth.hpp"
@@ -30,10 +32,15 @@ std::string read_file(const std::string& path, const char* what) {
   return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
-// SIGTERM and SIGINT write their number into a pipe that one thread reads (a self-pipe:
-// libraries start threads before main, OpenBLAS among them, so the signals cannot be
-// blocked everywhere for sigwait; a handler may run on any thread, and write() is
-// async-signal-safe).
+// Stopping on SIGTERM or SIGINT. install_stop_handlers() runs first in main(), before any
+// thread of ours exists, and blocks both signals there: every thread started from then on
+// (gRPC's, the workers, OpenMP's) inherits the mask, and the waiter thread takes them with
+// sigtimedwait(). No handler has to run on a thread that is busy elsewhere: under
+// ThreadSanitizer, which defers a handler until its thread next enters the runtime, a SIGTERM
+// taken by a thread parked in a library call was never handled. A library may still start
+// threads before main where the signals are not blocked (OpenBLAS does unless
+// OPENBLAS_NUM_THREADS=1, which the re-exec in main sets): for those a handler writes the
+// signal into a pipe that the waiter also looks at (write() is async-signal-safe).
 int stop_pipe[2] = {-1, -1};
 
 void on_stop_signal(int sig) {
@@ -41,21 +48,36 @@ void on_stop_signal(int sig) {
   [[maybe_unused]] const ssize_t n = ::write(stop_pipe[1], &c, 1);
 }
 
+sigset_t stop_signals() {
+  sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGTERM);
+  sigaddset(&set, SIGINT);
+  return set;
+}
+
 void install_stop_handlers() {
   if (::pipe(stop_pipe) != 0) brenier::fail(brenier::ErrorCode::kInternal, "cannot create a pipe");
+  ::fcntl(stop_pipe[0], F_SETFL, O_NONBLOCK);
   struct sigaction sa {};
   sa.sa_handler = on_stop_signal;
   sigemptyset(&sa.sa_mask);
   sa.sa_flags = SA_RESTART;
   sigaction(SIGTERM, &sa, nullptr);
   sigaction(SIGINT, &sa, nullptr);
+  const sigset_t set = stop_signals();
+  pthread_sigmask(SIG_BLOCK, &set, nullptr);
 }
 
 int wait_stop_signal() {
-  char c = 0;
-  while (::read(stop_pipe[0], &c, 1) < 0 && errno == EINTR) {
+  const sigset_t set = stop_signals();
+  for (;;) {
+    const timespec tick{0, 200'000'000};
+    const int sig = sigtimedwait(&set, nullptr, &tick);
+    if (sig > 0) return sig;
+    char c = 0;
+    if (::read(stop_pipe[0], &c, 1) == 1) return c;
   }
-  return c;
 }
 
 struct Flags {
@@ -63,7 +85,7 @@ struct Flags {
   std::string data = "brenier-data";
   int workers = 0, queue = 64;
   int64_t max_upload_mb = 512, max_vertices = 5'000'000;
-  int max_watches = 32, max_uploads = 8;
+  int max_watches = 128, max_uploads = 32;
   std::string tokens, tls_cert, tls_key, tls_client_ca, port_file;
   double grace = 30;
   std::string log_level = "info";

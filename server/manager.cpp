@@ -252,9 +252,10 @@ pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& r
       output_format(s.output_format());
       const pb::Mesh m = mesh_of(s.mesh());
       require_fits(m, s.domain(), s.cut_hole());
-      if (s.weights_size() != 0 && s.weights_size() != m.vertices())
-        invalid(std::to_string(s.weights_size()) + " weights for a mesh of " + std::to_string(m.vertices()) +
-                " vertices (one per input vertex)");
+      // One weight per vertex of the input file, checked when the job reads it; bounded here.
+      if (s.weights_size() > options_.max_vertices)
+        invalid(std::to_string(s.weights_size()) + " weights; this server takes meshes of at most " +
+                std::to_string(options_.max_vertices) + " vertices");
       break;
     }
     case pb::SubmitJobRequest::kDistance: {

@@ -14,8 +14,8 @@
 namespace brenier::server {
 
 struct ServiceOptions {
-  int max_watches_per_tenant = 32;  // concurrent WatchJob streams of one tenant
-  int max_uploads_per_tenant = 8;   // concurrent UploadMesh streams of one tenant
+  int max_watches_per_tenant = 128; // concurrent WatchJob streams of one tenant
+  int max_uploads_per_tenant = 32;  // concurrent UploadMesh streams of one tenant
 };
 
 /// Per-tenant counts of open streams: a tenant cannot hold every handler thread (or every

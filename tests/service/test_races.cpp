@@ -190,4 +190,29 @@ TEST_F(Fixture, ASubmissionRefusedByAFullQueueLeavesNoJobBehind) {
   EXPECT_EQ(wait_terminal(manager, "", second.id(), 60s).state(), pb::SUCCEEDED);
 }
 
+// A kill between a blob and its row leaves a blob nothing names; the sweep at start removes
+// those and only those.
+TEST_F(Fixture, TheStartSweepRemovesOnlyBlobsNothingNames) {
+  std::string kept_mesh, kept_result, orphan_mesh, orphan_result;
+  {
+    Store store(dir);
+    Manager manager(store, {.workers = 1, .queue = 4});
+    kept_mesh = upload(manager, "default", disk_bytes(4)).id();
+    const pb::Job job = manager.submit("default", map_request(kept_mesh));
+    const pb::Job done = wait_terminal(manager, "default", job.id(), 60s);
+    ASSERT_EQ(done.state(), pb::SUCCEEDED);
+    kept_result = done.result().artifacts(0).sha256();
+    // What a kill -9 leaves: bytes written, their row never.
+    orphan_mesh = store.put_blob(Store::Blob::kMesh, disk_bytes(7));
+    orphan_result = store.put_blob(Store::Blob::kResult, "a report of a run that was run again");
+  }
+  Store store(dir);
+  EXPECT_EQ(store.sweep_orphaned_blobs(), 2);
+  EXPECT_TRUE(store.has_blob(Store::Blob::kMesh, kept_mesh));
+  EXPECT_TRUE(store.has_blob(Store::Blob::kResult, kept_result));
+  EXPECT_FALSE(store.has_blob(Store::Blob::kMesh, orphan_mesh));
+  EXPECT_FALSE(store.has_blob(Store::Blob::kResult, orphan_result));
+  EXPECT_EQ(store.sweep_orphaned_blobs(), 0);
+}
+
 }  // namespace

@@ -11,6 +11,7 @@ namespace brenier::process {
 /// CHOLMOD's ordering): measured 7-8 % faster transports on 2 cores (10K sites 0.549 ->
 /// 0.511 s, 100K 7.04 -> 6.47 s, means of 10 and 3 runs), and the spinning no longer takes
 /// cores from other jobs and RPC threads of the server. Returns if the exec fails.
+/// It also sets OPENBLAS_NUM_THREADS=1 unless set (see process.cpp).
 void reexec_with_passive_openmp(char** argv);
 
 /// Called first in main(): glibc's malloc keeps up to 32 MB freed at the top of each arena
