@@ -27,6 +27,7 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include "child_process.hpp"
 #include "client.hpp"
 #include "mesh/io.hpp"
 #include "mesh/shapes.hpp"
@@ -53,24 +54,8 @@ struct Server {
     std::vector<std::string> args = {brenierd, "--listen", "127.0.0.1:0", "--data", data, "--port-file", port_file,
                                      "--log-level", "warn"};
     args.insert(args.end(), flags.begin(), flags.end());
-    pid = fork();
-    if (pid == 0) {
-      std::vector<char*> argv;
-      for (auto& a : args) argv.push_back(a.data());
-      argv.push_back(nullptr);
-      execv(argv[0], argv.data());
-      _exit(127);
-    }
-    for (int k = 0; k < 500; ++k) {
-      std::ifstream in(port_file);
-      int port = 0;
-      if (in >> port) {
-        address = "127.0.0.1:" + std::to_string(port);
-        return;
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-    throw std::runtime_error("brenierd did not start");
+    pid = brenier::bench::spawn(args);
+    address = "127.0.0.1:" + std::to_string(brenier::bench::wait_for_port(port_file, pid));
   }
   ~Server() {
     kill(pid, SIGTERM);

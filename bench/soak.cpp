@@ -31,6 +31,7 @@
 #include <set>
 #include <thread>
 
+#include "child_process.hpp"
 #include "client.hpp"
 #include "mesh/io.hpp"
 #include "mesh/shapes.hpp"
@@ -54,30 +55,9 @@ class Server {
     const std::string listen = "127.0.0.1:" + std::to_string(port_);
     std::vector<std::string> args = {brenierd_, "--listen", listen, "--data", data_, "--port-file", port_file,
                                      "--log-level", "warn", "--queue", "256", "--grace", "5"};
-    pid_ = fork();
-    if (pid_ == 0) {
-      std::vector<char*> argv;
-      for (auto& a : args) argv.push_back(a.data());
-      argv.push_back(nullptr);
-      const int fd = ::open((data_ + ".log").c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-      if (fd >= 0) dup2(fd, 2);
-      execv(argv[0], argv.data());
-      _exit(127);
-    }
-    for (int k = 0; k < 1500; ++k) {
-      std::ifstream in(port_file);
-      int port = 0;
-      if (in >> port) {
-        port_ = port;
-        started_ = Clock::now();
-        return;
-      }
-      int st = 0;
-      if (waitpid(pid_, &st, WNOHANG) == pid_)
-        throw std::runtime_error("brenierd exited at start (status " + std::to_string(st) + "; see " + data_ + ".log)");
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-    throw std::runtime_error("brenierd did not start within 30 s");
+    pid_ = brenier::bench::spawn(args, data_ + ".log");
+    port_ = brenier::bench::wait_for_port(port_file, pid_);  // its log: data_ + ".log"
+    started_ = Clock::now();
   }
   void kill9() {
     ::kill(pid_, SIGKILL);

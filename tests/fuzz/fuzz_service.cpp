@@ -205,82 +205,75 @@ void submit(FuzzedDataProvider& in, InProcess& e) {
   if (s.ok()) e.ids.push_back(job.id());
 }
 
+// A unary call whose request names one id (GetJob, CancelJob, GetMesh, DeleteMesh).
+template <class Request, class Response>
+Response by_id(InProcess& e, grpc::ClientContext& ctx, const std::string& id, const char* name,
+               grpc::Status (pb::Brenier::Stub::*rpc)(grpc::ClientContext*, const Request&, Response*)) {
+  Request r;
+  r.set_id(id);
+  Response out;
+  check((e.stub.get()->*rpc)(&ctx, r, &out), name);
+  return out;
+}
+
+// A server stream read to its end (WatchJob, GetResult).
+template <class Item, class Reader>
+void drain(Reader reader, const char* name) {
+  Item item;
+  while (reader->Read(&item)) {
+  }
+  check(reader->Finish(), name);
+}
+
+template <class Request>
+Request page_request(FuzzedDataProvider& in) {
+  Request r;
+  r.set_page_size(in.ConsumeIntegralInRange(-3, 2000));
+  r.set_page_token(in.ConsumeBool() ? "" : text(in, 20));
+  return r;
+}
+
 void inspect(FuzzedDataProvider& in, InProcess& e) {
   grpc::ClientContext ctx;
   ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(200));
   const std::string id = pick_id(in, e);
   switch (in.ConsumeIntegralInRange(0, 7)) {
     case 0: {
-      pb::GetJobRequest r;
-      r.set_id(id);
-      pb::Job j;
-      const grpc::Status s = e.stub->GetJob(&ctx, r, &j);
-      check(s, "GetJob");
-      if (s.ok() && j.state() == pb::FAILED && j.error().code() == static_cast<int>(grpc::StatusCode::INTERNAL)) {
+      const pb::Job j = by_id(e, ctx, id, "GetJob", &pb::Brenier::Stub::GetJob);
+      if (j.state() == pb::FAILED && j.error().code() == static_cast<int>(grpc::StatusCode::INTERNAL)) {
         std::fprintf(stderr, "job %s failed with INTERNAL: %s\n", j.id().c_str(), j.error().message().c_str());
         std::abort();
       }
       break;
     }
-    case 1: {
-      pb::CancelJobRequest r;
-      r.set_id(id);
-      pb::Job j;
-      check(e.stub->CancelJob(&ctx, r, &j), "CancelJob");
-      break;
-    }
+    case 1: (void)by_id(e, ctx, id, "CancelJob", &pb::Brenier::Stub::CancelJob); break;
     case 2: {
       pb::WatchJobRequest r;
       r.set_id(id);
-      auto reader = e.stub->WatchJob(&ctx, r);
-      pb::JobEvent ev;
-      while (reader->Read(&ev)) {
-      }
-      check(reader->Finish(), "WatchJob");
+      drain<pb::JobEvent>(e.stub->WatchJob(&ctx, r), "WatchJob");
       break;
     }
     case 3: {
       pb::GetResultRequest r;
       r.set_id(id);
       r.set_artifact(in.ConsumeBool() ? "" : text(in, 16));
-      auto reader = e.stub->GetResult(&ctx, r);
-      pb::ResultChunk c;
-      while (reader->Read(&c)) {
-      }
-      check(reader->Finish(), "GetResult");
+      drain<pb::ResultChunk>(e.stub->GetResult(&ctx, r), "GetResult");
       break;
     }
-    case 4: {
-      pb::DeleteMeshRequest r;
-      r.set_id(id);
-      pb::DeleteMeshResponse d;
-      check(e.stub->DeleteMesh(&ctx, r, &d), "DeleteMesh");
-      break;
-    }
+    case 4: (void)by_id(e, ctx, id, "DeleteMesh", &pb::Brenier::Stub::DeleteMesh); break;
     case 5: {
-      pb::ListJobsRequest r;
-      r.set_page_size(in.ConsumeIntegralInRange(-3, 2000));
-      r.set_page_token(in.ConsumeBool() ? "" : text(in, 20));
+      pb::ListJobsRequest r = page_request<pb::ListJobsRequest>(in);
       r.set_state(static_cast<pb::JobState>(in.ConsumeIntegralInRange(-1, 7)));
       pb::ListJobsResponse l;
       check(e.stub->ListJobs(&ctx, r, &l), "ListJobs");
       break;
     }
     case 6: {
-      pb::ListMeshesRequest r;
-      r.set_page_size(in.ConsumeIntegralInRange(-3, 2000));
-      r.set_page_token(in.ConsumeBool() ? "" : text(in, 20));
       pb::ListMeshesResponse l;
-      check(e.stub->ListMeshes(&ctx, r, &l), "ListMeshes");
+      check(e.stub->ListMeshes(&ctx, page_request<pb::ListMeshesRequest>(in), &l), "ListMeshes");
       break;
     }
-    default: {
-      pb::GetMeshRequest r;
-      r.set_id(id);
-      pb::Mesh m;
-      check(e.stub->GetMesh(&ctx, r, &m), "GetMesh");
-      break;
-    }
+    default: (void)by_id(e, ctx, id, "GetMesh", &pb::Brenier::Stub::GetMesh); break;
   }
 }
 
