@@ -366,7 +366,7 @@ std::shared_ptr<LiveJob> Manager::live(const std::string& tenant, const std::str
   if (!stored) fail(ErrorCode::kNotFound, "no job " + id);  // others' jobs too
   if (!l || is_terminal(stored->state())) {
     current = std::move(*stored);
-    return is_terminal(current.state()) ? nullptr : l;
+    return nullptr;
   }
   std::lock_guard<std::mutex> lock(l->mutex);
   current = l->job;

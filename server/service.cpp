@@ -28,13 +28,6 @@ const std::string& bounded(const std::string& s, const char* what) {
   return s;
 }
 
-bool is_sha256(const std::string& s) {
-  if (s.size() != 64) return false;
-  for (char c : s)
-    if (!std::isdigit(static_cast<unsigned char>(c)) && !(c >= 'a' && c <= 'f')) return false;
-  return true;
-}
-
 }  // namespace
 
 StreamCaps::Slot StreamCaps::take(const std::string& tenant, const char* kind, int limit) {
@@ -65,7 +58,7 @@ grpc::Status Service::UploadMesh(grpc::ServerContext* ctx, grpc::ServerReader<pb
     if (!reader->Read(&msg)) invalid("the upload is empty: the first message must carry the header");
     if (!msg.has_header()) invalid("the first message of an upload must carry the header (name, format, size, sha256)");
     const pb::UploadMeshRequest::Header h = msg.header();
-    if (!is_sha256(h.sha256())) invalid("the header's sha256 must be 64 lower-case hex digits");
+    if (!is_sha256_hex(h.sha256())) invalid("the header's sha256 must be 64 lower-case hex digits");
     if (h.size_bytes() <= 0) invalid("the header's size_bytes must be positive");
     if (h.name().size() > 256) invalid("the mesh name is longer than 256 characters");
     // The name becomes part of the results' suggested file names: nothing that leaves a folder.

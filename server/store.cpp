@@ -226,12 +226,6 @@ std::string Store::temp_path() {
          std::to_string(counter.fetch_add(1));
 }
 
-namespace {
-bool is_sha256_hex(const std::string& s) {
-  return s.size() == 64 && std::all_of(s.begin(), s.end(), [](char c) { return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'); });
-}
-}  // namespace
-
 std::string Store::blob_root(Blob kind) const {
   return dir_ + (kind == Blob::kMesh ? "/blobs/meshes" : "/blobs/results");
 }

@@ -28,4 +28,7 @@ class Sha256 {
 
 std::string sha256_hex(std::string_view bytes);
 
+/// True for 64 lower-case hex digits (what sha256_hex returns).
+bool is_sha256_hex(std::string_view s);
+
 }  // namespace brenier
