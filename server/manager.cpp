@@ -16,6 +16,7 @@
 #include "common/parallel.hpp"
 #include "jobs/jobs.hpp"
 #include "mesh/topology.hpp"
+#include "job_kinds.hpp"
 #include "status.hpp"
 
 namespace brenier::server {
@@ -49,116 +50,12 @@ std::string random_id() {
   return buf;
 }
 
-std::string domain_name(pb::Domain d) { return d == pb::SPHERE ? "sphere" : "disk"; }
-std::string map_method_name(pb::MapMethod m) { return m == pb::AREA_PRESERVING ? "area-preserving" : "conformal"; }
-std::string distance_method_name(pb::DistanceMethod m) { return m == pb::OMT_LINEAR ? "omt-linear" : "wasserstein"; }
-
 pb::TopologyClass topology_class(mesh::MeshClass c) {
   switch (c) {
     case mesh::MeshClass::kDisk: return pb::TOPOLOGICAL_DISK;
     case mesh::MeshClass::kSphere: return pb::TOPOLOGICAL_SPHERE;
     default: return pb::OTHER;
   }
-}
-
-// The same checks the core makes when the job runs, made at submission from the mesh's
-// record, so that a spec that cannot run is refused at once.
-void require_fits(const pb::Mesh& m, pb::Domain domain, bool cut_hole) {
-  const bool sphere = domain == pb::SPHERE;
-  const char* cls = m.topology_class() == pb::TOPOLOGICAL_DISK     ? "disk"
-                    : m.topology_class() == pb::TOPOLOGICAL_SPHERE ? "sphere"
-                                                                   : "other";
-  if (sphere && cut_hole) invalid("cut_hole applies to the disk domain");
-  if (sphere && m.topology_class() != pb::TOPOLOGICAL_SPHERE)
-    invalid("mesh " + m.name() + " (" + m.id().substr(0, 12) + ") is a " + cls +
-            " mesh; the sphere domain needs a closed genus-0 surface");
-  if (!sphere && m.topology_class() != pb::TOPOLOGICAL_DISK && !(cut_hole && m.topology_class() == pb::TOPOLOGICAL_SPHERE))
-    invalid("mesh " + m.name() + " (" + m.id().substr(0, 12) + ") is a " + cls +
-            " mesh; the disk domain needs a topological disk" +
-            (m.topology_class() == pb::TOPOLOGICAL_SPHERE ? " (set cut_hole to open it)" : ""));
-}
-
-jobs::MapRequest map_request(const pb::MapSpec& s) {
-  jobs::MapRequest r;
-  r.domain = domain_name(s.domain());
-  r.method = map_method_name(s.method());
-  if (s.domain() == pb::SPHERE) {
-    if (!s.markers().empty()) {
-      if (s.markers_size() != 3) invalid("sphere markers are three vertices (sent to 0, 1, infinity)");
-      r.markers.assign(s.markers().begin(), s.markers().end());
-    }
-  } else if (!s.markers().empty()) {
-    if (s.markers_size() != 2) invalid("disk markers are two vertices: [center, boundary]");
-    r.center = s.markers(0);
-    r.boundary_marker = s.markers(1);
-  }
-  r.cut_hole = s.cut_hole();
-  if (s.has_hole_vertex()) {
-    if (!s.cut_hole()) invalid("hole_vertex goes with cut_hole");
-    r.hole_vertex = s.hole_vertex();
-    if (r.hole_vertex < 0) invalid("hole_vertex must be a vertex number");
-  }
-  if (s.max_iterations() < 0 || s.max_iterations() > 100000) invalid("max_iterations must lie in [1, 100000] (0: the default)");
-  if (s.max_iterations() > 0) r.max_iterations = s.max_iterations();
-  if (!(s.tolerance() >= 0) || !std::isfinite(s.tolerance())) invalid("the tolerance must be a positive number");
-  r.tolerance = s.tolerance();
-  r.weights.assign(s.weights().begin(), s.weights().end());
-  if (!(s.t() >= 0 && s.t() <= 1)) invalid("t must lie in [0, 1]");
-  r.t = s.t();
-  r.allow_flips = s.allow_flips();
-  if (r.method == "conformal" && (r.t > 0 || !r.weights.empty()))
-    invalid("t and weights apply to the area-preserving method");
-  return r;
-}
-
-mesh::Format output_format(const std::string& f) {
-  if (f.empty()) return mesh::Format::kObj;
-  const auto p = mesh::parse_format(f);
-  if (!p || *p == mesh::Format::kStl || *p == mesh::Format::kFreeSurfer)
-    invalid("output_format '" + f + "' is not one of obj, ply, off");
-  return *p;
-}
-
-template <class Spec>
-jobs::ShapeRequest shape_request(const Spec& s) {
-  jobs::ShapeRequest r;
-  r.method = distance_method_name(s.method());
-  r.domain = domain_name(s.domain());
-  r.cut_hole = s.cut_hole();
-  const pb::WassersteinOptions& w = s.wasserstein();
-  if (!(w.tolerance() >= 0) || !std::isfinite(w.tolerance())) invalid("the tolerance must be a positive number");
-  if (w.tolerance() > 0) r.tolerance = w.tolerance();
-  if (!std::isfinite(w.cost_tolerance()) || w.cost_tolerance() > 1)
-    invalid("the cost tolerance must be at most 1 (0: the default, negative: off)");
-  if (w.cost_tolerance() != 0) r.cost_tolerance = std::max(0.0, w.cost_tolerance());
-  r.refine_rotation = w.refine_rotation();
-  r.raw = w.raw();
-  r.shape_options();  // refuses what the core refuses
-  return r;
-}
-
-// Markers as (center, boundary), or (-1, -1) when the message is absent.
-std::pair<int, int> markers_of(bool has, const pb::DiskMarkers& m) {
-  if (!has) return {-1, -1};
-  if (m.center() < 0 || m.boundary() < 0) invalid("markers are vertex numbers");
-  return {m.center(), m.boundary()};
-}
-
-pb::Artifact artifact(Store& store, const std::string& name, const std::string& media, const std::string& filename,
-                      const std::string& bytes) {
-  pb::Artifact a;
-  a.set_name(name);
-  a.set_media_type(media);
-  a.set_filename(filename);
-  a.set_size_bytes(static_cast<int64_t>(bytes.size()));
-  a.set_sha256(store.put_blob(Store::Blob::kResult, bytes));
-  return a;
-}
-
-std::string read_whole(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) fail(ErrorCode::kInternal, "cannot read " + path);
-  return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
 }  // namespace
@@ -243,51 +140,7 @@ pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& r
     if (!m) fail(ErrorCode::kNotFound, "no mesh " + id);
     return *m;
   };
-  std::string kind;
-  switch (request.spec_case()) {
-    case pb::SubmitJobRequest::kMap: {
-      const pb::MapSpec& s = request.map();
-      kind = "map";
-      map_request(s);
-      output_format(s.output_format());
-      const pb::Mesh m = mesh_of(s.mesh());
-      require_fits(m, s.domain(), s.cut_hole());
-      // One weight per vertex of the input file, checked when the job reads it; bounded here.
-      if (s.weights_size() > options_.max_vertices)
-        invalid(std::to_string(s.weights_size()) + " weights; this server takes meshes of at most " +
-                std::to_string(options_.max_vertices) + " vertices");
-      break;
-    }
-    case pb::SubmitJobRequest::kDistance: {
-      const pb::DistanceSpec& s = request.distance();
-      kind = "distance";
-      shape_request(s);
-      if (s.has_markers_a() != s.has_markers_b()) invalid("give markers for both meshes or neither");
-      require_fits(mesh_of(s.a()), s.domain(), s.cut_hole());
-      require_fits(mesh_of(s.b()), s.domain(), s.cut_hole());
-      break;
-    }
-    case pb::SubmitJobRequest::kMatrix: {
-      const pb::MatrixSpec& s = request.matrix();
-      kind = "matrix";
-      shape_request(s);
-      if (s.markers_size() != 0 && s.markers_size() != s.meshes_size())
-        invalid(std::to_string(s.markers_size()) + " markers for " + std::to_string(s.meshes_size()) +
-                " meshes (one per mesh, or none)");
-      if (s.meshes_size() < 2) invalid("a distance matrix needs at least two meshes");
-      if (s.meshes_size() > options_.max_matrix_meshes)
-        fail(ErrorCode::kResourceExhausted, "a matrix job takes at most " + std::to_string(options_.max_matrix_meshes) +
-                                                " meshes");
-      std::set<std::string> seen;
-      for (const std::string& id : s.meshes()) {
-        if (!seen.insert(id).second) invalid("mesh " + id + " is given twice");
-        require_fits(mesh_of(id), s.domain(), s.cut_hole());
-      }
-      break;
-    }
-    default:
-      invalid("the job has no spec (map, distance or matrix)");
-  }
+  const std::string kind = check_spec(request, mesh_of, SpecLimits{options_.max_vertices, options_.max_matrix_meshes});
   pb::Job job;
   job.set_id(random_id());
   job.set_request_id(request.request_id());
@@ -439,196 +292,6 @@ void Manager::finish_shutdown(double grace_seconds) {
   scheduler_->join();
 }
 
-// ---- running a job -----------------------------------------------------------------------
-
-namespace {
-
-// What a running job needs of its surroundings.
-struct Context {
-  Store& store;
-  Scheduler& scheduler;
-  LiveJob& live;
-  std::string tenant;
-  std::function<void(const pb::JobEvent&)> publish;
-  bool keep_going() const { return !live.cancel && !live.interrupted; }
-  jobs::ProgressSink sink() {
-    return [this](const jobs::Progress& p) {
-      pb::JobEvent e;
-      e.set_job_id(live.job.id());
-      e.set_state(pb::RUNNING);
-      e.set_stage(p.stage);
-      e.set_fraction(p.fraction);
-      e.set_iteration(p.iteration);
-      e.set_residual(p.residual);
-      *e.mutable_time() = TimeUtil::GetCurrentTime();
-      {
-        std::lock_guard<std::mutex> lock(live.mutex);
-        live.job.set_stage(p.stage);
-        live.job.set_fraction(p.fraction);
-      }
-      publish(e);
-      return keep_going();
-    };
-  }
-  void check() const {
-    if (!keep_going()) fail(ErrorCode::kCancelled, "cancelled");
-  }
-  mesh::CleanMesh load(const std::string& id, pb::Mesh* record = nullptr) {
-    auto m = store.get_mesh(tenant, id);
-    if (!m || !store.has_blob(Store::Blob::kMesh, id)) invalid("mesh " + id + " was deleted");
-    if (record) *record = *m;
-    const auto format = mesh::parse_format(m->format());
-    return mesh::clean(mesh::read_soup(read_whole(store.blob_path(Store::Blob::kMesh, id)), *format));
-  }
-};
-
-pb::JobResult run_map_job(Context& c, const pb::MapSpec& s) {
-  pb::Mesh rec;
-  const mesh::CleanMesh cm = c.load(s.mesh(), &rec);
-  const jobs::MapRequest r = map_request(s);
-  const mesh::Format format = output_format(s.output_format());
-  const jobs::MapOutcome m = jobs::run_map(cm, rec.name(), r, c.sink());
-  c.check();
-  pb::JobResult out;
-  const std::string ext = mesh::format_name(format);
-  const std::string stem = rec.name() + "-" + r.domain + "-" + r.method;
-  *out.add_artifacts() = artifact(c.store, "mesh", format == mesh::Format::kObj ? "model/obj" : "application/octet-stream",
-                                  stem + "." + ext, jobs::map_mesh_bytes(m, format));
-  *out.add_artifacts() = artifact(c.store, "report", "application/json", stem + ".json", m.report.dump(2));
-  out.set_converged(true);
-  return out;
-}
-
-pb::JobResult run_distance_job(Context& c, const pb::DistanceSpec& s) {
-  const jobs::ShapeRequest r = shape_request(s);
-  pb::Mesh ra, rb;
-  const mesh::CleanMesh a = c.load(s.a(), &ra), b = c.load(s.b(), &rb);
-  const auto [ca, ba] = markers_of(s.has_markers_a(), s.markers_a());
-  const auto [cb, bb] = markers_of(s.has_markers_b(), s.markers_b());
-  distance::ShapeInput ia = jobs::shape_input(a, ra.name(), ra.name(), r, ca, ba);
-  distance::ShapeInput ib = jobs::shape_input(b, rb.name(), rb.name(), r, cb, bb);
-  if (ia.name == ib.name) ib.name += " (b)";
-  jobs::DistanceOutcome d = jobs::run_distance(ia, ib, r, hardware_threads(), c.sink());
-  c.check();
-  if (!d.result.converged) {
-    char buf[200];
-    std::snprintf(buf, sizeof buf, "the transport did not converge (max relative cell-mass error %.2e)",
-                  d.result.max_relative_error);
-    fail(ErrorCode::kNotConverged, buf);
-  }
-  d.report["a"] = s.a();
-  d.report["b"] = s.b();
-  pb::JobResult out;
-  *out.add_artifacts() = artifact(c.store, "report", "application/json", "distance.json", d.report.dump(2));
-  out.set_distance(d.result.distance);
-  out.set_converged(true);
-  return out;
-}
-
-// A matrix as groups of tasks on the shared pool: every shape once (cached by content hash
-// under DATA/shapes, reused by later jobs), then tiles of pairs, each kept in a work
-// directory as it finishes so that a run interrupted by a restart redoes only the missing
-// tiles; the tiles are assembled as `brenier-compute merge` does.
-pb::JobResult run_matrix_job(Context& c, const pb::MatrixSpec& s, const std::string& job_id) {
-  const auto t0 = std::chrono::steady_clock::now();
-  const jobs::ShapeRequest r = shape_request(s);
-  const int n = s.meshes_size();
-  std::vector<distance::ShapeInput> in(n);
-  std::map<std::string, int> names;
-  c.scheduler.run_group(n, [&](int k) {
-    c.check();
-    pb::Mesh rec;
-    const mesh::CleanMesh cm = c.load(s.meshes(k), &rec);
-    const auto [center, boundary] = markers_of(s.markers_size() > 0, s.markers_size() > 0 ? s.markers(k) : pb::DiskMarkers());
-    in[k] = jobs::shape_input(cm, rec.name(), rec.name(), r, center, boundary);
-  });
-  for (int k = 0; k < n; ++k) ++names[in[k].name];
-  for (int k = 0; k < n; ++k)
-    if (names[in[k].name] > 1) in[k].name += "#" + s.meshes(k).substr(0, 12);
-  const std::string cache = c.store.dir() + "/shapes";
-  fs::create_directories(cache);
-  std::mutex progress_mutex;
-  int shapes_done = 0;
-  auto cancel_only = [&](int, double) { return c.keep_going(); };
-  c.scheduler.run_group(n, [&](int k) {
-    c.check();
-    distance::cached_shape(in[k], cache, cancel_only);
-    std::lock_guard<std::mutex> lock(progress_mutex);
-    ++shapes_done;
-    c.sink()(jobs::Progress{"shapes", 0.5 * shapes_done / n, shapes_done, 0});
-  });
-  const int pairs = n * (n - 1) / 2;
-  const int tiles = std::max(1, std::min(pairs, 4 * c.scheduler.workers()));
-  const std::string work = c.store.dir() + "/work/" + job_id;
-  fs::create_directories(work);
-  distance::MatrixOptions mo;
-  mo.method = distance::parse_method(r.method);
-  mo.wasserstein = r.wasserstein();
-  mo.jobs = 1;
-  mo.cache_dir = cache;
-  mo.solver_progress = cancel_only;
-  std::vector<distance::MatrixTile> done(tiles);
-  int tiles_done = 0;
-  c.scheduler.run_group(tiles, [&](int k) {
-    c.check();
-    const std::string path = work + "/tile-" + std::to_string(k) + ".json";
-    distance::MatrixOptions o = mo;
-    o.tile = {k, tiles};
-    bool reused = false;
-    if (fs::exists(path)) {
-      try {
-        distance::MatrixTile t = distance::read_tile(path);
-        if (t.tile.index == k && t.tile.count == tiles && static_cast<int>(t.names.size()) == n &&
-            t.keys.front() == distance::shape_key(in.front().mesh, in.front().options)) {
-          done[k] = std::move(t);
-          reused = true;
-        }
-      } catch (const Error&) {
-      }
-    }
-    if (!reused) {
-      done[k] = distance::compute_tile(in, o);
-      distance::write_tile(done[k], path + ".tmp");
-      fs::rename(path + ".tmp", path);
-    }
-    std::lock_guard<std::mutex> lock(progress_mutex);
-    ++tiles_done;
-    c.sink()(jobs::Progress{"pairs", 0.5 + 0.5 * tiles_done / tiles, tiles_done, 0});
-  });
-  c.check();
-  const Eigen::MatrixXd d = distance::assemble(done);  // checks the tiles belong together
-  const std::vector<std::string>& nm = done.front().names;
-  nlohmann::json failed = nlohmann::json::array();
-  for (const auto& t : done)
-    for (const auto& e : t.pairs)
-      if (!e.result.converged) failed.push_back({nm[e.i], nm[e.j]});
-  pb::JobResult out;
-  auto matrix_file = [&](const std::string& ext) {
-    const std::string tmp = c.store.temp_path() + "." + ext;
-    distance::write_matrix(tmp, nm, d, done.front().method);
-    std::string bytes = read_whole(tmp);
-    fs::remove(tmp);
-    return bytes;
-  };
-  *out.add_artifacts() = artifact(c.store, "matrix", "text/csv", "matrix.csv", matrix_file("csv"));
-  *out.add_artifacts() = artifact(c.store, "matrix.npy", "application/octet-stream", "matrix.npy", matrix_file("npy"));
-  nlohmann::json report = {{"method", done.front().method},
-                           {"domain", r.domain},
-                           {"shapes", nm},
-                           {"meshes", std::vector<std::string>(s.meshes().begin(), s.meshes().end())},
-                           {"pairs", pairs},
-                           {"tiles", tiles},
-                           {"not_converged", failed},
-                           {"seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
-  *out.add_artifacts() = artifact(c.store, "report", "application/json", "matrix.json", report.dump(2));
-  out.set_converged(failed.empty());
-  std::error_code ec;
-  fs::remove_all(work, ec);
-  return out;
-}
-
-}  // namespace
-
 void Manager::run(const std::string& id) {
   test_hooks::at(test_hooks::Point::kRunStart);
   std::shared_ptr<LiveJob> l = find_live(id);
@@ -665,17 +328,12 @@ void Manager::run(const std::string& id) {
   publish(*l, state_event(job));
   spdlog::info("job {} ({}) started, attempt {}", id, job.kind(), job.attempts());
   const auto t0 = std::chrono::steady_clock::now();
-  Context c{store_, *scheduler_, *l, tenant, [&](const pb::JobEvent& e) { publish(*l, e); }};
+  JobContext c{store_, *scheduler_, *l, tenant, [&](const pb::JobEvent& e) { publish(*l, e); }};
   pb::JobResult result;
   std::optional<Error> error;
   bool requeue = false;
   try {
-    switch (job.spec().spec_case()) {
-      case pb::SubmitJobRequest::kMap: result = run_map_job(c, job.spec().map()); break;
-      case pb::SubmitJobRequest::kDistance: result = run_distance_job(c, job.spec().distance()); break;
-      case pb::SubmitJobRequest::kMatrix: result = run_matrix_job(c, job.spec().matrix(), id); break;
-      default: invalid("the job has no spec");
-    }
+    result = run_spec(c, job.spec());
   } catch (const Error& e) {
     if (e.code() == ErrorCode::kCancelled && l->interrupted && !l->cancel) requeue = true;
     error = e;

@@ -13,14 +13,6 @@
 
 namespace brenier::distance {
 
-const char* method_name(Method m) { return m == Method::kWasserstein ? "wasserstein" : "omt-linear"; }
-
-Method parse_method(const std::string& name) {
-  if (name == "wasserstein") return Method::kWasserstein;
-  if (name == "omt-linear") return Method::kOmtLinear;
-  invalid("unknown distance method '" + name + "' (wasserstein or omt-linear)");
-}
-
 namespace {
 
 using cd = std::complex<double>;

@@ -5,15 +5,11 @@
 #include <string>
 #include <vector>
 
+#include "distance/method.hpp"
 #include "distance/shape.hpp"
 #include "omt/omt.hpp"
 
 namespace brenier::distance {
-
-enum class Method { kWasserstein, kOmtLinear };
-const char* method_name(Method m);
-/// "wasserstein" or "omt-linear"; throws Error(kInvalidArgument) otherwise.
-Method parse_method(const std::string& name);
 
 struct PairResult {
   double distance = 0;  // the reported distance

@@ -2,6 +2,7 @@
 // one pair (Alg. 5 / Def. 2.24) with its report.
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 
 #include "common/error.hpp"
 #include "common/parallel.hpp"
@@ -11,41 +12,35 @@
 
 namespace brenier::jobs {
 
-distance::ShapeOptions ShapeRequest::shape_options() const {
-  if (domain != "disk" && domain != "sphere") invalid("unknown domain '" + domain + "' (disk or sphere)");
-  distance::parse_method(method);
-  if (domain == "sphere" && cut_hole) invalid("cut_hole applies to the disk domain");
-  if (domain == "sphere" && refine_rotation)
-    invalid("refine_rotation applies to the disk domain (on the sphere the frame's half-turns are compared)");
-  if (!(tolerance > 0) || !std::isfinite(tolerance)) invalid("the tolerance must be a positive number");
+distance::ShapeOptions shape_options(const ShapeRequest& request) {
+  request.validate();
   distance::ShapeOptions o;
-  o.sphere = domain == "sphere";
-  o.transport_tolerance = tolerance;
-  if (!(cost_tolerance >= 0) || !std::isfinite(cost_tolerance)) invalid("the cost tolerance must be 0 or a positive number");
-  o.cost_tolerance = cost_tolerance;
-  o.quadrature.rings = rings;
-  o.quadrature.angles = angles;
+  o.sphere = request.domain == Domain::kSphere;
+  o.transport_tolerance = request.tolerance;
+  o.cost_tolerance = request.cost_tolerance;
+  o.quadrature.rings = request.rings;
+  o.quadrature.angles = request.angles;
   return o;
 }
 
-distance::WassersteinOptions ShapeRequest::wasserstein() const {
+distance::WassersteinOptions wasserstein_options(const ShapeRequest& request) {
   distance::WassersteinOptions w;
-  w.refine_rotation = refine_rotation;
-  w.debias = !raw;
+  w.refine_rotation = request.refine_rotation;
+  w.debias = !request.raw;
   return w;
 }
 
 distance::ShapeInput shape_input(const mesh::CleanMesh& cm, const std::string& name, const std::string& what,
-                                 const ShapeRequest& request, int center, int boundary) {
+                                 const ShapeRequest& request, DiskMarkers markers) {
   mesh::require_valid(cm, what);
   std::vector<int> to_clean(static_cast<size_t>(cm.input_vertices), -1);
   for (size_t i = 0; i < cm.vertex_origin.size(); ++i) to_clean[cm.vertex_origin[i]] = static_cast<int>(i);
   distance::ShapeInput in;
   in.name = name;
   in.mesh = cm.mesh;
-  in.options = request.shape_options();
+  in.options = shape_options(request);
   const mesh::Topology t = mesh::compute_topology(in.mesh);
-  if (request.domain == "sphere") {
+  if (request.domain == Domain::kSphere) {
     if (t.mesh_class != mesh::MeshClass::kSphere)
       invalid(what + ": is a " + std::string(mesh::class_name(t.mesh_class)) +
               " mesh; shape distances on the sphere need closed genus-0 surfaces");
@@ -65,21 +60,22 @@ distance::ShapeInput shape_input(const mesh::CleanMesh& cm, const std::string& n
       invalid(what + ": " + kind + " " + std::to_string(v) + " is not a vertex of the mesh");
     return to_clean[v];
   };
-  if ((center >= 0) != (boundary >= 0)) invalid(what + ": give both markers (center and boundary) or neither");
-  if (center >= 0) {
-    in.options.center_vertex = marker(center, "center vertex");
-    in.options.boundary_vertex = marker(boundary, "boundary vertex");
+  if (markers.given()) {
+    if (markers.center < 0 || markers.boundary < 0)
+      invalid(what + ": give both {markers} (center and boundary) or neither");
+    in.options.center_vertex = marker(markers.center, "center vertex");
+    in.options.boundary_vertex = marker(markers.boundary, "boundary vertex");
   }
   return in;
 }
 
-nlohmann::json pair_json(const distance::PairResult& r, const std::string& method) {
-  nlohmann::json j = {{"method", method},
+nlohmann::json pair_json(const distance::PairResult& r, distance::Method method) {
+  nlohmann::json j = {{"method", distance::method_name(method)},
                       {"distance", r.distance},
                       {"rotation_rad", r.rotation},
                       {"normalization", r.normalization},
                       {"converged", r.converged}};
-  if (method == "wasserstein") {
+  if (method == distance::Method::kWasserstein) {
     j["forward"] = r.forward;
     j["backward"] = r.backward;
     j["raw_forward"] = r.raw_forward;
@@ -102,10 +98,18 @@ nlohmann::json shape_json(const distance::Shape& x) {
           {"omt_newton_iterations", x.omt_iterations}};
 }
 
+std::string not_converged_message(const distance::PairResult& r) {
+  char buf[200];
+  std::snprintf(buf, sizeof buf, "the transport did not converge (max relative cell-mass error %.2e)",
+                r.max_relative_error);
+  return buf;
+}
+
 DistanceOutcome run_distance(const distance::ShapeInput& a, const distance::ShapeInput& b,
                              const ShapeRequest& request, int threads, const ProgressSink& progress) {
   const auto t0 = std::chrono::steady_clock::now();
-  const distance::Method method = distance::parse_method(request.method);
+  request.validate();
+  const distance::Method method = request.method;
   const distance::ShapeInput* in[2] = {&a, &b};
   distance::Shape s[2];
   // Two shapes may report at once: one sink call at a time, the fraction of the slower.
@@ -122,7 +126,7 @@ DistanceOutcome run_distance(const distance::ShapeInput& a, const distance::Shap
   });
   const double t_shapes = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const auto t1 = std::chrono::steady_clock::now();
-  distance::WassersteinOptions wo = request.wasserstein();
+  distance::WassersteinOptions wo = wasserstein_options(request);
   wo.parallel_directions = threads > 1;
   wo.progress = solver_progress(shared, "pair", request.tolerance, 0.5, 1.0);
   DistanceOutcome out;
@@ -130,7 +134,7 @@ DistanceOutcome run_distance(const distance::ShapeInput& a, const distance::Shap
                                                         : distance::omt_linear(s[0], s[1]);
   const double t_pair = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
   out.report = pair_json(out.result, request.method);
-  out.report["domain"] = request.domain;
+  out.report["domain"] = domain_name(request.domain);
   out.report["seconds"] = {{"shapes", t_shapes}, {"pair", t_pair}};
   for (const distance::Shape& x : s) out.report["shapes"].push_back(shape_json(x));
   out.a = std::move(s[0]);

@@ -10,6 +10,7 @@
 
 #include "distance/distance.hpp"
 #include "distance/matrix.hpp"
+#include "jobs/requests.hpp"
 #include "mesh/io.hpp"
 #include "mesh/topology.hpp"
 #include "mesh/validate.hpp"
@@ -37,20 +38,6 @@ nlohmann::json topology_json(const mesh::Topology& t);
 
 // ---- map ---------------------------------------------------------------------------------
 
-struct MapRequest {
-  std::string domain = "disk";        // disk | sphere
-  std::string method = "conformal";   // conformal | area-preserving
-  int center = -1, boundary_marker = -1;  // disk markers (input vertex numbers; -1: none)
-  std::vector<int> markers;           // sphere: three input vertices sent to 0, 1, infinity
-  bool cut_hole = false;
-  int hole_vertex = -1;
-  double tolerance = 0;               // 0: the method's default (1e-7 rad; 1e-8 cell mass)
-  int max_iterations = 200;
-  std::vector<double> weights;        // area-preserving: one positive weight per input vertex
-  double t = 0;                       // area-preserving: phi_t
-  bool allow_flips = false;           // return a map that folds faces instead of failing
-};
-
 struct MapOutcome {
   mesh::TriMesh surface;     // the mesh that was mapped (the input's order; a cut star removed)
   mesh::Vertices positions;  // #V by 3: disk with z = 0, or on the unit sphere
@@ -60,7 +47,7 @@ struct MapOutcome {
   nlohmann::json report;
 };
 
-/// Checks the request against the mesh (domain, markers, weights) and computes the map
+/// Validates the request, checks it against the mesh (domain, markers, weights) and computes the map
 /// (conformal: Alg. 1 / sec. 3.2.5; area-preserving: Alg. 3 / sec. 3.2.5). `what` names the
 /// mesh in messages. Throws Error(kInvalidArgument) for a request that does not fit the
 /// mesh, Error(kNotConverged) for a solve that did not converge or a map that folds faces
@@ -73,36 +60,21 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
 std::string map_mesh_bytes(const MapOutcome& map, mesh::Format format);
 void write_map_file(const MapOutcome& map, const std::string& path);
 
-/// Reads `count` whitespace-separated positive weights (Error(kInvalidArgument) naming the
-/// file and the entry otherwise).
-std::vector<double> read_weights_file(const std::string& path, int64_t count);
-
 // ---- distances ---------------------------------------------------------------------------
 
-/// Options shared by distance and matrix jobs.
-struct ShapeRequest {
-  std::string method = "wasserstein";  // wasserstein | omt-linear
-  std::string domain = "disk";         // disk | sphere
-  bool cut_hole = false;
-  double tolerance = 1e-3;             // the Wasserstein transports' max relative cell-mass error
-  double cost_tolerance = 1e-6;        // ... or the relative dual gap of their cost (0: off)
-  bool refine_rotation = false;
-  bool raw = false;
-  int rings = 64, angles = 256;
-  /// The shape options of every shape (Error(kInvalidArgument) for combinations we refuse).
-  distance::ShapeOptions shape_options() const;
-  distance::WassersteinOptions wasserstein() const;
-};
+/// The shape options of every shape of a validated request.
+distance::ShapeOptions shape_options(const ShapeRequest& request);
+distance::WassersteinOptions wasserstein_options(const ShapeRequest& request);
 
 /// A cleaned, valid mesh made ready for the distances: checked against the domain, opened
 /// with a cut hole when asked, its markers (input vertex numbers, -1: none; both or neither)
 /// carried to the mesh's numbering. `what` names it in messages.
 distance::ShapeInput shape_input(const mesh::CleanMesh& cm, const std::string& name, const std::string& what,
-                                 const ShapeRequest& request, int center = -1, int boundary = -1);
+                                 const ShapeRequest& request, DiskMarkers markers = {});
 
 /// JSON of one pair: method, distance, rotation_rad, normalization, converged and, for the
 /// Wasserstein distance, forward/backward, raw_*, newton_iterations, max_relative_area_error.
-nlohmann::json pair_json(const distance::PairResult& r, const std::string& method);
+nlohmann::json pair_json(const distance::PairResult& r, distance::Method method);
 /// JSON of a prepared shape: name, vertices, faces, key, normalization, iterations.
 nlohmann::json shape_json(const distance::Shape& s);
 
@@ -116,6 +88,9 @@ struct DistanceOutcome {
 /// did not converge leaves result.converged false (the caller decides); other failures throw.
 DistanceOutcome run_distance(const distance::ShapeInput& a, const distance::ShapeInput& b,
                              const ShapeRequest& request, int threads, const ProgressSink& progress = {});
+
+/// What to say of a pair whose transport did not converge (its worst cell-mass error).
+std::string not_converged_message(const distance::PairResult& r);
 
 /// Progress callbacks of the numerical loops (omt::Progress) reporting into `sink` under
 /// `stage`, the fraction estimated from the residual's way down to `tolerance` and mapped

@@ -69,118 +69,83 @@ omt::Progress solver_progress(const ProgressSink& sink, const std::string& stage
   };
 }
 
-std::vector<double> read_weights_file(const std::string& path, int64_t count) {
-  std::ifstream in(path);
-  if (!in) invalid("cannot read the weights file " + path);
-  std::vector<double> w;
-  std::string tok;
-  while (in >> tok) {
-    char* end = nullptr;
-    const double x = std::strtod(tok.c_str(), &end);
-    if (end == tok.c_str() || *end != '\0' || !(x > 0) || !std::isfinite(x))
-      invalid(path + ": weight " + std::to_string(w.size()) + " is '" + tok + "'; weights must be positive numbers");
-    w.push_back(x);
+namespace {
+
+// The surface a map is computed on: the cleaned mesh, opened by a cut hole when asked, with
+// the way back from its vertices to the input file's numbers, which users give.
+struct Surface {
+  mesh::TriMesh mesh;
+  std::vector<int> origin;   // input vertex of each vertex
+  std::vector<int> to_mesh;  // vertex of each input vertex (-1: removed or merged away)
+  int cut_vertex = -1;       // input number of the vertex a cut hole removed
+
+  Surface(const mesh::CleanMesh& cm) : mesh(cm.mesh), origin(cm.vertex_origin) {
+    to_mesh.assign(static_cast<size_t>(cm.input_vertices), -1);
+    renumber();
   }
-  if (static_cast<int64_t>(w.size()) != count)
-    invalid(path + ": " + std::to_string(w.size()) + " weights for " + std::to_string(count) + " vertices");
-  return w;
-}
-
-MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const MapRequest& o,
-                   const ProgressSink& progress) {
-  mesh::require_valid(cm, what);
-  if (o.domain != "disk" && o.domain != "sphere") invalid("unknown domain '" + o.domain + "' (disk or sphere)");
-  if (o.method != "conformal" && o.method != "area-preserving")
-    invalid("unknown method '" + o.method + "' (conformal or area-preserving)");
-  if (!(o.t >= 0 && o.t <= 1)) invalid("t must lie in [0, 1]");
-  if (!(o.tolerance >= 0) || !std::isfinite(o.tolerance)) invalid("the tolerance must be a positive number");
-  if (o.max_iterations < 1) invalid("max_iterations must be positive");
-  // Vertex numbers given by the user are those of the input file.
-  std::vector<int> to_clean(static_cast<size_t>(cm.input_vertices), -1);
-  for (size_t i = 0; i < cm.vertex_origin.size(); ++i) to_clean[cm.vertex_origin[i]] = static_cast<int>(i);
-  auto clean_index = [&](int v, const char* kind) {
-    if (v < 0 || v >= cm.input_vertices || to_clean[v] < 0)
-      invalid(std::string(kind) + " " + std::to_string(v) + " is not a vertex of the mesh");
-    return to_clean[v];
-  };
-
-  MapOutcome out;
-  out.disk = o.domain == "disk";
-  mesh::TriMesh surface = cm.mesh;
-  std::vector<int> origin = cm.vertex_origin;
-  int cut_vertex = -1;
-  if (o.cut_hole) {
-    if (!out.disk) invalid("cut_hole applies to the disk domain");
-    auto cut = mesh::cut_hole(surface, o.hole_vertex >= 0 ? std::optional<int>(clean_index(o.hole_vertex, "hole vertex"))
-                                                          : std::nullopt);
+  void renumber() {
+    std::fill(to_mesh.begin(), to_mesh.end(), -1);
+    for (size_t i = 0; i < origin.size(); ++i) to_mesh[origin[i]] = static_cast<int>(i);
+  }
+  int vertex(int input, const char* kind) const {
+    if (input < 0 || input >= static_cast<int>(to_mesh.size()) || to_mesh[input] < 0)
+      invalid(std::string(kind) + " " + std::to_string(input) + " is not a vertex of the mesh");
+    return to_mesh[input];
+  }
+  void cut_hole(int hole_vertex) {
+    auto cut = mesh::cut_hole(mesh, hole_vertex >= 0 ? std::optional<int>(vertex(hole_vertex, "hole vertex")) : std::nullopt);
     cut_vertex = origin[cut.vertex];
     std::vector<int> o2;
     for (int v : cut.vertex_origin) o2.push_back(origin[v]);
     origin = std::move(o2);
-    surface = std::move(cut.mesh);
-    std::fill(to_clean.begin(), to_clean.end(), -1);
-    for (size_t i = 0; i < origin.size(); ++i) to_clean[origin[i]] = static_cast<int>(i);
+    mesh = std::move(cut.mesh);
+    renumber();
   }
+};
 
+conformal::ConformalOptions conformal_options(const MapRequest& o, const Surface& s) {
   conformal::ConformalOptions co;
   co.tolerance = o.tolerance > 0 ? o.tolerance : 1e-7;
   co.max_iterations = o.max_iterations;
-  if (o.center >= 0) co.center_vertex = clean_index(o.center, "center vertex");
-  if (o.boundary_marker >= 0) co.boundary_vertex = clean_index(o.boundary_marker, "boundary marker");
-  if (!o.markers.empty()) {
-    if (o.markers.size() != 3) invalid("sphere markers are three vertices (sent to 0, 1, infinity)");
-    co.sphere_markers = std::array<int, 3>{clean_index(o.markers[0], "marker"), clean_index(o.markers[1], "marker"),
-                                           clean_index(o.markers[2], "marker")};
+  if (o.domain == Domain::kDisk && !o.markers.empty()) {
+    co.center_vertex = s.vertex(o.center(), "center vertex");
+    co.boundary_vertex = s.vertex(o.boundary(), "boundary marker");
   }
-  const bool area_preserving = o.method == "area-preserving";
-  if (!area_preserving && (o.t > 0 || !o.weights.empty()))
-    invalid("t and weights apply to the area-preserving method");
-  const auto t1 = std::chrono::steady_clock::now();
-  conformal::ConformalMap map;
-  std::optional<omt::AreaPreservingMap> ap;
-  if (!area_preserving) {
-    co.progress = solver_progress(progress, "conformal", co.tolerance, 0.0, 0.95);
-    map = out.disk ? conformal::map_to_disk(surface, co) : conformal::map_to_sphere(surface, co);
-  } else {
-    omt::AreaPreservingOptions apo;
-    apo.conformal = co;
-    apo.conformal.tolerance = 1e-7;
-    apo.conformal.progress = solver_progress(progress, "conformal", 1e-7, 0.0, 0.3);
-    if (o.tolerance > 0) apo.omt.tolerance = o.tolerance;
-    apo.omt.max_iterations = o.max_iterations;
-    apo.omt.progress = solver_progress(progress, "omt", apo.omt.tolerance, 0.3, 0.95);
-    apo.t = o.t;
-    if (progress)
-      apo.repair_progress = [progress](int round, int folds) {
-        return progress(Progress{"fold repair", 0.95, round + 1, static_cast<double>(folds)});
-      };
-    if (!o.weights.empty()) {
-      if (static_cast<int64_t>(o.weights.size()) != cm.input_vertices)
-        invalid(std::to_string(o.weights.size()) + " weights for " + std::to_string(cm.input_vertices) + " vertices");
-      apo.weights.resize(static_cast<int>(origin.size()));
-      for (size_t i = 0; i < origin.size(); ++i) {
-        const double w = o.weights[origin[i]];
-        if (!(w > 0) || !std::isfinite(w))
-          invalid("weight " + std::to_string(origin[i]) + " is " + std::to_string(w) + "; weights must be positive");
-        apo.weights[static_cast<int>(i)] = w;
-      }
-    }
-    ap = out.disk ? omt::area_preserving_disk(surface, apo) : omt::area_preserving_sphere(surface, apo);
-    map = ap->conformal;
-  }
-  out.positions = ap ? ap->positions : map.positions;
-  const double t_map = seconds_since(t1);
-  if (!map.converged) {
-    char buf[200];
-    std::snprintf(buf, sizeof buf, ": the conformal map did not converge: max |K - Kbar| = %.3e rad after %d Newton iterations",
-                  map.max_curvature_error, map.newton_iterations);
-    fail(ErrorCode::kNotConverged, what + buf);
-  }
-  if (progress && !progress(Progress{"quality", 0.96, 0, 0})) fail(ErrorCode::kCancelled, "cancelled");
+  if (o.domain == Domain::kSphere && !o.markers.empty())
+    co.sphere_markers = std::array<int, 3>{s.vertex(o.markers[0], "marker"), s.vertex(o.markers[1], "marker"),
+                                           s.vertex(o.markers[2], "marker")};
+  return co;
+}
 
-  const quality::MapQuality q =
-      quality::measure(surface, out.positions, out.disk ? quality::Target::kPlane : quality::Target::kSphere);
-  if (q.flipped_faces > 0 && !o.allow_flips) {
+// The area-preserving map's options: the conformal start to 1e-7 rad, then the transport
+// (Alg. 3) with the request's tolerance, phi_t and weights carried to the surface's vertices.
+omt::AreaPreservingOptions area_preserving_options(const MapRequest& o, const Surface& s, int64_t input_vertices,
+                                                   conformal::ConformalOptions co, const ProgressSink& progress) {
+  omt::AreaPreservingOptions apo;
+  apo.conformal = std::move(co);
+  apo.conformal.tolerance = 1e-7;
+  apo.conformal.progress = solver_progress(progress, "conformal", 1e-7, 0.0, 0.3);
+  if (o.tolerance > 0) apo.omt.tolerance = o.tolerance;
+  apo.omt.max_iterations = o.max_iterations;
+  apo.omt.progress = solver_progress(progress, "omt", apo.omt.tolerance, 0.3, 0.95);
+  apo.t = o.t;
+  if (progress)
+    apo.repair_progress = [progress](int round, int folds) {
+      return progress(Progress{"fold repair", 0.95, round + 1, static_cast<double>(folds)});
+    };
+  if (!o.weights.empty()) {
+    if (static_cast<int64_t>(o.weights.size()) != input_vertices)
+      invalid(std::to_string(o.weights.size()) + " {weights} for " + std::to_string(input_vertices) + " vertices");
+    apo.weights.resize(static_cast<int>(s.origin.size()));
+    for (size_t i = 0; i < s.origin.size(); ++i) apo.weights[static_cast<int>(i)] = o.weights[s.origin[i]];
+  }
+  return apo;
+}
+
+// A map that folds faces (or covers the sphere more than once) is refused unless asked for.
+void require_bijective(const quality::MapQuality& q, const Surface& s, const mesh::Vertices& positions,
+                       const std::string& what) {
+  if (q.flipped_faces > 0) {
     std::string list;
     for (size_t i = 0; i < q.flipped.size() && i < 8; ++i) list += (i ? ", " : "") + std::to_string(q.flipped[i]);
     // Say why when the first folded face is too small for doubles: a region the conformal
@@ -188,7 +153,7 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
     const int f = q.flipped.front();
     double size = 0;
     for (int k = 0; k < 3; ++k)
-      size = std::max(size, (out.positions.row(surface.F(f, k)) - out.positions.row(surface.F(f, (k + 1) % 3))).norm());
+      size = std::max(size, (positions.row(s.mesh.F(f, k)) - positions.row(s.mesh.F(f, (k + 1) % 3))).norm());
     std::string why;
     if (size < 1e-8) {
       char buf[160];
@@ -199,21 +164,25 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
     fail(ErrorCode::kNotConverged, what + ": the map folds " + std::to_string(q.flipped_faces) + " faces (first: " + list +
                                        ")" + why + "; set {allow_flips} to write it anyway");
   }
-
-  if (!quality::covers_once(q.degree) && !o.allow_flips) {
+  if (!quality::covers_once(q.degree)) {
     char buf[160];
     std::snprintf(buf, sizeof buf, ": the map covers the sphere %.0f times, so it is no bijection; set {allow_flips} to write it anyway",
                   q.degree);
     fail(ErrorCode::kNotConverged, what + buf);
   }
+}
 
+// The report of DESIGN.md's contract, but for seconds.read/total that the caller adds.
+nlohmann::json map_report(const mesh::CleanMesh& cm, const MapRequest& o, const Surface& s, double t_map,
+                          const conformal::ConformalMap& map, const omt::AreaPreservingMap* ap,
+                          const quality::MapQuality& q) {
   const mesh::Topology topo = mesh::compute_topology(cm.mesh);
-  nlohmann::json& j = out.report;
+  nlohmann::json j;
   j["mesh"] = {{"vertices", topo.vertices}, {"faces", topo.faces}, {"boundary_loops", topo.boundary_loops},
                {"genus", topo.genus}, {"class", mesh::class_name(topo.mesh_class)}};
-  if (cut_vertex >= 0) j["cut_hole_vertex"] = cut_vertex;
-  j["domain"] = o.domain;
-  j["method"] = o.method;
+  if (s.cut_vertex >= 0) j["cut_hole_vertex"] = s.cut_vertex;
+  j["domain"] = domain_name(o.domain);
+  j["method"] = map_method_name(o.method);
   j["seconds"] = {{"map", t_map}};
   j["conformal"] = {{"newton_iterations", map.newton_iterations},
                     {"max_curvature_error", map.max_curvature_error},
@@ -239,7 +208,47 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
                   {"area_distortion_log", stats_json(q.area_distortion_log_abs, "_abs")},
                   {"quasi_conformal", stats_json(q.quasi_conformal)}};
   j["problems"] = problems_json(cm.report);
-  out.surface = std::move(surface);
+  return j;
+}
+
+}  // namespace
+
+MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const MapRequest& o,
+                   const ProgressSink& progress) {
+  o.validate();
+  mesh::require_valid(cm, what);
+  MapOutcome out;
+  out.disk = o.domain == Domain::kDisk;
+  Surface s(cm);
+  if (o.cut_hole) s.cut_hole(o.hole_vertex);
+  conformal::ConformalOptions co = conformal_options(o, s);
+
+  const auto t1 = std::chrono::steady_clock::now();
+  conformal::ConformalMap map;
+  std::optional<omt::AreaPreservingMap> ap;
+  if (o.method == MapMethod::kConformal) {
+    co.progress = solver_progress(progress, "conformal", co.tolerance, 0.0, 0.95);
+    map = out.disk ? conformal::map_to_disk(s.mesh, co) : conformal::map_to_sphere(s.mesh, co);
+  } else {
+    const omt::AreaPreservingOptions apo = area_preserving_options(o, s, cm.input_vertices, co, progress);
+    ap = out.disk ? omt::area_preserving_disk(s.mesh, apo) : omt::area_preserving_sphere(s.mesh, apo);
+    map = ap->conformal;
+  }
+  out.positions = ap ? ap->positions : map.positions;
+  const double t_map = seconds_since(t1);
+  if (!map.converged) {
+    char buf[200];
+    std::snprintf(buf, sizeof buf, ": the conformal map did not converge: max |K - Kbar| = %.3e rad after %d Newton iterations",
+                  map.max_curvature_error, map.newton_iterations);
+    fail(ErrorCode::kNotConverged, what + buf);
+  }
+  if (progress && !progress(Progress{"quality", 0.96, 0, 0})) fail(ErrorCode::kCancelled, "cancelled");
+
+  const quality::MapQuality q =
+      quality::measure(s.mesh, out.positions, out.disk ? quality::Target::kPlane : quality::Target::kSphere);
+  if (!o.allow_flips) require_bijective(q, s, out.positions, what);
+  out.report = map_report(cm, o, s, t_map, map, ap ? &*ap : nullptr, q);
+  out.surface = std::move(s.mesh);
   return out;
 }
 

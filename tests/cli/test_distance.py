@@ -301,7 +301,7 @@ check(j and j["converged"] and j["distance"] < 1e-3 and "chordal" in j["normaliz
       f"sphere: exact d(A, rigidly moved A) = {j and j['distance']}, {j and j['normalization']}")
 refused(["distance", mesh("retinal"), mesh("nefertiti"), "--domain", "sphere"], ["nefertiti", "closed genus-0"])
 refused(["distance", mesh("retinal"), mesh("blobby"), "--domain", "sphere", "--refine-rotation"],
-        ["refine_rotation", "disk"])
+        ["--refine-rotation", "disk"])
 
 
 # ---- the sphere's exact distance against POT's exact EMD, squared chordal cost -------------
@@ -373,7 +373,7 @@ refused(["distance", mesh("nefertiti"), mesh("patch-01"), "--center-a", "3", "--
          "--center-b", "1", "--boundary-b", "2"], ["99999"])
 refused(["distance", mesh("nefertiti"), os.path.join(work, "missing.off")], ["missing.off"])
 refused(["matrix", *subset[:3], "-o", os.path.join(work, "x.json"), "--tile", "3/3"], ["tile"])
-refused(["matrix", subset[0], "-o", os.path.join(work, "x.csv")], ["two shapes"])
+refused(["matrix", subset[0], "-o", os.path.join(work, "x.csv")], ["two meshes"])
 refused(["matrix", *subset[:2], "-o", os.path.join(work, "no-such-folder", "x.csv")], ["no-such-folder", "does not exist"])
 refused(["matrix", *subset[:2], "-o", os.path.join(work, "x.txt"), "--method", "omt-linear", "--cache", cache],
         [".csv"])

@@ -58,17 +58,22 @@ check(json.loads(so)["quality"]["flipped_faces"] == 0, "bear folds nothing on th
 rc, so, se = run("map", os.path.join(data, "camel.off"), "--domain", "disk", "--cut-hole", "--json")
 check(rc == 0 and json.loads(so)["quality"]["flipped_faces"] == 0, f"camel --cut-hole: {rc} {se!r}")
 
-# Errors: exit 2 with one line.
-for args, what in [
-    (["map", os.path.join(data, "3torus.off"), "--domain", "disk"], "genus 3 onto the disk"),
-    (["map", os.path.join(data, "lion-head.off"), "--domain", "sphere"], "disk onto the sphere"),
-    (["map", os.path.join(data, "armadillo.off"), "--domain", "disk"], "closed mesh without --cut-hole"),
-    (["map", os.path.join(data, "lion-head.off"), "--center", "99999999"], "centre out of range"),
-    (["map", os.path.join(data, "lion-head.off"), "--method", "bogus"], "unknown method"),
-    (["map", "/nonexistent.off"], "missing file"),
+# Errors: exit 2 with one line that names the problem.
+for args, what, says in [
+    (["map", os.path.join(data, "3torus.off"), "--domain", "disk"], "genus 3 onto the disk", "disk"),
+    (["map", os.path.join(data, "lion-head.off"), "--domain", "sphere"], "disk onto the sphere", "sphere"),
+    (["map", os.path.join(data, "armadillo.off"), "--domain", "disk"], "closed mesh without --cut-hole", "--cut-hole"),
+    (["map", os.path.join(data, "lion-head.off"), "--markers", "99999999,0"], "centre out of range",
+     "center vertex 99999999 is not a vertex"),
+    (["map", os.path.join(data, "lion-head.off"), "--markers", "1,2,3"], "three disk markers",
+     "disk --markers are two vertices"),
+    (["map", os.path.join(data, "lion-head.off"), "--t", "0.5"], "phi_t of a conformal map",
+     "--t and --weights apply to the area-preserving method"),
+    (["map", os.path.join(data, "lion-head.off"), "--method", "bogus"], "unknown method", "bogus"),
+    (["map", "/nonexistent.off"], "missing file", "/nonexistent.off"),
 ]:
     rc, so, se = run(*args)
-    check(rc == 2 and len(se.splitlines()) == 1, f"{what}: exit {rc}, stderr {se!r}")
+    check(rc == 2 and len(se.splitlines()) == 1 and says in se, f"{what}: exit {rc}, stderr {se!r}")
 
 # Never a crash: every real mesh onto both domains exits 0, 2 (unfit input) or 3 (no
 # guaranteed result), with exactly one stderr line when it fails.

@@ -149,9 +149,9 @@ TEST(Service, MapRoundTripsGiveTheEnginesAnswer) {
     EXPECT_EQ(report["quality"]["flipped_faces"], 0);
     // The engine in-process on the same bytes gives the same file, bit for bit.
     jobs::MapRequest r;
-    r.method = method == pb::AREA_PRESERVING ? "area-preserving" : "conformal";
+    r.method = method == pb::AREA_PRESERVING ? jobs::MapMethod::kAreaPreserving : jobs::MapMethod::kConformal;
     const jobs::MapOutcome local = jobs::run_map(clean_of(hemisphere()), "hemisphere", r);
-    EXPECT_EQ(obj, jobs::map_mesh_bytes(local, mesh::Format::kObj)) << r.method;
+    EXPECT_EQ(obj, jobs::map_mesh_bytes(local, mesh::Format::kObj)) << jobs::map_method_name(r.method);
     // A downloaded result uploaded as a mesh, then deleted, leaves the job's result whole.
     const pb::Mesh again = c.upload_bytes(obj, "result.obj", "obj");
     c.delete_mesh(again.id());
@@ -203,8 +203,8 @@ TEST(Service, DistanceAndMatrixRoundTripsGiveTheEnginesAnswer) {
   jobs::ShapeRequest sm = sr;
   sm.tolerance = 1e-4;
   const jobs::DistanceOutcome marked =
-      jobs::run_distance(jobs::shape_input(clean_of(hemisphere()), "hemi", "hemi", sm, 0, last_a),
-                         jobs::shape_input(clean_of(bumped_disk()), "bump", "bump", sm, 0, last_b), sm, 2);
+      jobs::run_distance(jobs::shape_input(clean_of(hemisphere()), "hemi", "hemi", sm, {0, last_a}),
+                         jobs::shape_input(clean_of(bumped_disk()), "bump", "bump", sm, {0, last_b}), sm, 2);
   EXPECT_EQ(jm.result().distance(), marked.result.distance);
   EXPECT_NE(nlohmann::json::parse(c.fetch(jm.id()))["normalization"].get<std::string>().find("marker"), std::string::npos);
   // The cost test off (negative over gRPC, 0 in the engine): the cells to the tolerance,
@@ -238,7 +238,7 @@ TEST(Service, DistanceAndMatrixRoundTripsGiveTheEnginesAnswer) {
   const pb::Job js = c.watch(c.submit(rs).id());
   ASSERT_EQ(js.state(), pb::SUCCEEDED) << js.error().message();
   jobs::ShapeRequest ss = sr;
-  ss.domain = "sphere";
+  ss.domain = jobs::Domain::kSphere;
   const jobs::DistanceOutcome on_sphere = jobs::run_distance(jobs::shape_input(clean_of(icosphere()), "ball", "ball", ss),
                                                              jobs::shape_input(clean_of(off_bytes(egg)), "egg", "egg", ss), ss, 2);
   EXPECT_EQ(js.result().distance(), on_sphere.result.distance);
@@ -268,7 +268,7 @@ TEST(Service, DistanceAndMatrixRoundTripsGiveTheEnginesAnswer) {
     std::vector<distance::ShapeInput> in = {ia, ib, jobs::shape_input(clean_of(off_bytes(mesh::make_hemisphere(7))), "hemi7", "hemi7", sr)};
     distance::MatrixOptions mo;
     mo.method = method == pb::OMT_LINEAR ? distance::Method::kOmtLinear : distance::Method::kWasserstein;
-    for (auto& s : in) s.options = sr.shape_options();
+    for (auto& s : in) s.options = jobs::shape_options(sr);
     const Eigen::MatrixXd expect = distance::assemble({distance::compute_tile(in, mo)});
     for (int i = 0; i < 3; ++i) {
       std::string line, name;
@@ -916,8 +916,8 @@ TEST(ServiceRealMeshes, UploadsAgreeWithTheOfflineValidatorAndMapsWithTheEngine)
     const pb::Job j = c.watch(c.submit(map_spec(c.upload(path).id(), domain, method)).id());
     ASSERT_EQ(j.state(), pb::SUCCEEDED) << file << ": " << j.error().message();
     jobs::MapRequest r;
-    r.domain = domain == pb::SPHERE ? "sphere" : "disk";
-    r.method = method == pb::AREA_PRESERVING ? "area-preserving" : "conformal";
+    r.domain = domain == pb::SPHERE ? jobs::Domain::kSphere : jobs::Domain::kDisk;
+    r.method = method == pb::AREA_PRESERVING ? jobs::MapMethod::kAreaPreserving : jobs::MapMethod::kConformal;
     const jobs::MapOutcome local = jobs::run_map(mesh::load_mesh(path), file, r);
     EXPECT_EQ(c.fetch(j.id()), jobs::map_mesh_bytes(local, mesh::Format::kObj)) << file;
     EXPECT_EQ(nlohmann::json::parse(c.fetch(j.id(), "report"))["quality"]["flipped_faces"], 0) << file;

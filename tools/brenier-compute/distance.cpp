@@ -15,6 +15,7 @@
 #include "distance/analysis.hpp"
 #include "distance/matrix.hpp"
 #include "mesh/geometry.hpp"
+#include "request_flags.hpp"
 
 namespace brenier::tools {
 namespace {
@@ -23,41 +24,19 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-/// Options every distance command shares (a jobs::ShapeRequest plus the reading options).
-struct ShapeFlags {
+/// The reading options of every distance command.
+struct ReadFlags {
   mesh::CleanOptions clean;
-  jobs::ShapeRequest request;
   void add_to(CLI::App* cmd) {
-    jobs::ShapeRequest& r = request;
-    cmd->add_option("--method", r.method, "wasserstein (exact, Alg. 5) or omt-linear (Def. 2.24 as an embedding)")
-        ->check(CLI::IsMember({"wasserstein", "omt-linear"}));
-    cmd->add_option("--domain", r.domain, "disk (topological disks; closed genus-0 surfaces with --cut-hole) or sphere (closed "
-                    "genus-0 surfaces; wasserstein with the squared chordal cost)")
-        ->check(CLI::IsMember({"disk", "sphere"}));
-    cmd->add_flag("--cut-hole", r.cut_hole, "open closed genus-0 meshes into disks by removing one vertex's star");
-    cmd->add_option("--tolerance", r.tolerance, "wasserstein: max relative cell-mass error of each transport (default 1e-3; the distance is read from "
-                    "the dual, accurate to about the square of it)")
-        ->check(CLI::PositiveNumber);
-    cmd->add_option("--cost-tolerance", r.cost_tolerance,
-                    "wasserstein: or stop each transport once its cost is known to this relative accuracy (the "
-                    "Newton decrement; default 1e-6, 0: off)")
-        ->check(CLI::Range(0.0, 1.0));
-    cmd->add_flag("--refine-rotation", r.refine_rotation,
-                  "wasserstein without markers: refine the rotation beyond the quadrature's step by exact "
-                  "evaluations (3-4 times the work)");
-    cmd->add_flag("--raw", r.raw,
-                  "wasserstein: eq. 3.31 as it stands, without removing the sites' quantization cost");
-    cmd->add_option("--rings", r.rings, "quadrature rings of the OMT-map samples (default 64)")->check(CLI::Range(1, 4096));
-    cmd->add_option("--angles", r.angles, "quadrature angles per ring (default 256)")->check(CLI::Range(4, 65536));
     cmd->add_flag("--merge-duplicates", clean.merge_duplicates, "merge vertices with identical coordinates");
     cmd->add_flag("--keep-largest", clean.keep_largest_component, "keep the largest connected component");
     cmd->add_flag("--fix-orientation", clean.fix_orientation, "orient each component consistently");
   }
-
-  // Reads, checks and (with --cut-hole) opens one surface; markers are input vertex numbers.
-  distance::ShapeInput load(const std::string& path, int center, int boundary) const {
+  // Reads, checks and (with cut_hole) opens one surface; markers are input vertex numbers.
+  distance::ShapeInput load(const std::string& path, const jobs::ShapeRequest& request,
+                            jobs::DiskMarkers markers) const {
     const mesh::CleanMesh cm = mesh::load_mesh(path, clean);
-    return jobs::shape_input(cm, std::filesystem::path(path).stem().string(), path, request, center, boundary);
+    return jobs::shape_input(cm, std::filesystem::path(path).stem().string(), path, request, markers);
   }
 };
 
@@ -75,18 +54,19 @@ void unique_names(std::vector<distance::ShapeInput>& shapes, const std::vector<s
 // ---- distance ----------------------------------------------------------------------------
 
 struct DistanceOptions {
-  ShapeFlags flags;
+  options::DistanceFlags flags;
+  ReadFlags read;
   std::string a, b;
-  int center_a = -1, boundary_a = -1, center_b = -1, boundary_b = -1;
   bool both = false, json = false;
 };
 
 int run_distance(const DistanceOptions& o) {
   const auto t0 = std::chrono::steady_clock::now();
-  std::vector<distance::ShapeInput> in = {o.flags.load(o.a, o.center_a, o.boundary_a),
-                                          o.flags.load(o.b, o.center_b, o.boundary_b)};
+  const jobs::DistanceRequest request = o.flags.resolve();
+  std::vector<distance::ShapeInput> in = {o.read.load(o.a, request.shape, request.a),
+                                          o.read.load(o.b, request.shape, request.b)};
   if (in[0].name == in[1].name) in[1].name += " (b)";
-  jobs::DistanceOutcome d = jobs::run_distance(in[0], in[1], o.flags.request, hardware_threads());
+  jobs::DistanceOutcome d = jobs::run_distance(in[0], in[1], request.shape, hardware_threads());
   const distance::PairResult& r = d.result;
   if (o.json) {
     nlohmann::json& j = d.report;
@@ -95,50 +75,28 @@ int run_distance(const DistanceOptions& o) {
     j["seconds"]["total"] = seconds_since(t0);
     std::cout << j.dump(2) << std::endl;
   } else {
-    std::printf("%s %s %s: %.10g\n", o.flags.request.method.c_str(), d.a.name.c_str(), d.b.name.c_str(), r.distance);
-    if (o.both && o.flags.request.method == "wasserstein")
+    std::printf("%s %s %s: %.10g\n", distance::method_name(request.shape.method), d.a.name.c_str(), d.b.name.c_str(),
+                r.distance);
+    if (o.both && request.shape.method == distance::Method::kWasserstein)
       std::printf("forward (source %s) %.10g, backward (source %s) %.10g\n", d.a.name.c_str(), r.forward,
                   d.b.name.c_str(), r.backward);
     std::printf("normalization: %s; rotation %.6f rad; %.3f s\n", r.normalization.c_str(), r.rotation,
                 seconds_since(t0));
   }
-  if (!r.converged) {
-    char buf[200];
-    std::snprintf(buf, sizeof buf, "the transport did not converge (max relative cell-mass error %.2e)",
-                  r.max_relative_error);
-    fail(ErrorCode::kNotConverged, buf);
-  }
+  if (!r.converged) fail(ErrorCode::kNotConverged, jobs::not_converged_message(r));
   return kExitOk;
 }
 
 // ---- matrix ------------------------------------------------------------------------------
 
 struct MatrixCommand {
-  ShapeFlags flags;
+  options::MatrixFlags flags;
+  ReadFlags read;
   std::vector<std::string> files;
-  std::string output, tile, cache, markers;
+  std::string output, tile, cache;
   int jobs = 0;
   bool progress = false, json = false;
 };
-
-// "file-or-name,center,boundary" per line.
-std::map<std::string, std::pair<int, int>> read_markers(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) fail(ErrorCode::kNotFound, "cannot read the markers file " + path);
-  std::map<std::string, std::pair<int, int>> out;
-  std::string line;
-  for (int n = 1; std::getline(in, line); ++n) {
-    if (line.empty() || line[0] == '#') continue;
-    std::stringstream ss(line);
-    std::string name, c, b, extra;
-    int ci = -1, bi = -1;
-    if (!std::getline(ss, name, ',') || !std::getline(ss, c, ',') || !std::getline(ss, b, ',') ||
-        std::getline(ss, extra, ',') || std::sscanf(c.c_str(), "%d", &ci) != 1 || std::sscanf(b.c_str(), "%d", &bi) != 1)
-      invalid(path + ":" + std::to_string(n) + ": expected file,center_vertex,boundary_vertex");
-    out[name] = {ci, bi};
-  }
-  return out;
-}
 
 int run_matrix(const MatrixCommand& o) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -146,24 +104,17 @@ int run_matrix(const MatrixCommand& o) {
   const std::filesystem::path folder = std::filesystem::path(o.output).parent_path();
   if (!folder.empty() && !std::filesystem::is_directory(folder))
     invalid("cannot write " + o.output + ": the folder " + folder.string() + " does not exist");
+  const jobs::MatrixRequest request = o.flags.resolve(o.files);
   distance::MatrixOptions mo;
-  mo.method = distance::parse_method(o.flags.request.method);
-  mo.wasserstein = o.flags.request.wasserstein();
+  mo.method = request.shape.method;
+  mo.wasserstein = jobs::wasserstein_options(request.shape);
   mo.jobs = o.jobs > 0 ? o.jobs : hardware_threads();
   mo.cache_dir = o.cache;
   if (!o.tile.empty()) mo.tile = distance::parse_tile(o.tile);
-  const auto markers = o.markers.empty() ? std::map<std::string, std::pair<int, int>>{} : read_markers(o.markers);
   std::vector<distance::ShapeInput> shapes(o.files.size());
   parallel_for(static_cast<int>(o.files.size()), mo.jobs, [&](int k) {
-    const std::string& f = o.files[k];
-    auto it = markers.find(f);
-    if (it == markers.end()) it = markers.find(std::filesystem::path(f).stem().string());
-    shapes[k] = it == markers.end() ? o.flags.load(f, -1, -1) : o.flags.load(f, it->second.first, it->second.second);
+    shapes[k] = o.read.load(o.files[k], request.shape, request.markers.empty() ? jobs::DiskMarkers{} : request.markers[k]);
   });
-  if (!markers.empty())
-    for (const auto& s : shapes)
-      if (!s.options.center_vertex)
-        invalid("the markers file gives no markers for " + s.name + " (markers for all shapes or none)");
   unique_names(shapes, o.files);
   if (o.progress)
     mo.progress = [](const std::string& stage, int done, int total) {
@@ -305,10 +256,7 @@ void add_distance(CLI::App& app, Action& action) {
     cmd->add_option("a", o->a, "first mesh")->required();
     cmd->add_option("b", o->b, "second mesh")->required();
     o->flags.add_to(cmd);
-    cmd->add_option("--center-a", o->center_a, "interior marker of the first mesh (sent to 0)");
-    cmd->add_option("--boundary-a", o->boundary_a, "boundary marker of the first mesh (sent to 1)");
-    cmd->add_option("--center-b", o->center_b, "interior marker of the second mesh");
-    cmd->add_option("--boundary-b", o->boundary_b, "boundary marker of the second mesh");
+    o->read.add_to(cmd);
     cmd->add_flag("--both", o->both, "wasserstein: also print both directions");
     cmd->add_flag("--json", o->json, "print one JSON object");
     cmd->callback([o, &action] { action = [o] { return run_distance(*o); }; });
@@ -320,10 +268,10 @@ void add_distance(CLI::App& app, Action& action) {
     cmd->add_option("-o,--output", o->output, "matrix file (.csv, .npy, .json); with --tile, the tile file")
         ->required();
     o->flags.add_to(cmd);
+    o->read.add_to(cmd);
     cmd->add_option("--jobs", o->jobs, "worker threads (default: the number of cores)")->check(CLI::Range(1, 1024));
     cmd->add_option("--tile", o->tile, "compute only tile I of K (0-based, e.g. 3/16) and write it for merge");
     cmd->add_option("--cache", o->cache, "directory keeping each shape's maps by content hash");
-    cmd->add_option("--markers", o->markers, "file of lines file,center_vertex,boundary_vertex");
     cmd->add_flag("--progress", o->progress, "report progress on stderr");
     cmd->add_flag("--json", o->json, "print a JSON summary");
     cmd->callback([o, &action] { action = [o] { return run_matrix(*o); }; });

@@ -1,0 +1,170 @@
+// The requests' names and their validation: every front end's one place for the checks
+// that need no mesh (requests.hpp).
+#include "jobs/requests.hpp"
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+
+#include "common/error.hpp"
+
+namespace brenier {
+namespace distance {
+
+const char* method_name(Method m) { return m == Method::kWasserstein ? "wasserstein" : "omt-linear"; }
+
+std::optional<Method> find_method(std::string_view name) {
+  if (name == "wasserstein") return Method::kWasserstein;
+  if (name == "omt-linear") return Method::kOmtLinear;
+  return std::nullopt;
+}
+
+Method parse_method(const std::string& name) {
+  if (auto m = find_method(name)) return *m;
+  invalid("unknown distance method '" + name + "' (wasserstein or omt-linear)");
+}
+
+}  // namespace distance
+
+namespace jobs {
+namespace {
+
+bool finite_at_least(double x, double lo) { return std::isfinite(x) && x >= lo; }
+
+void check_marker_pair(const DiskMarkers& m, const std::string& whose) {
+  if (!m.given()) return;
+  if (m.center < 0 || m.boundary < 0)
+    invalid(whose + "{markers} are two vertex numbers, the center and a boundary vertex (both or neither)");
+}
+
+// An integer that is the whole of `text` (leading and trailing blanks allowed).
+std::optional<int> whole_int(const std::string& text) {
+  const char* s = text.c_str();
+  char* end = nullptr;
+  const long v = std::strtol(s, &end, 10);
+  if (end == s) return std::nullopt;
+  while (*end == ' ' || *end == '\t' || *end == '\r') ++end;
+  if (*end != '\0' || v < -1 || v > (1L << 31) - 1) return std::nullopt;
+  return static_cast<int>(v);
+}
+
+}  // namespace
+
+const char* domain_name(Domain d) { return d == Domain::kSphere ? "sphere" : "disk"; }
+
+std::optional<Domain> find_domain(std::string_view name) {
+  if (name == "disk") return Domain::kDisk;
+  if (name == "sphere") return Domain::kSphere;
+  return std::nullopt;
+}
+
+const char* map_method_name(MapMethod m) { return m == MapMethod::kAreaPreserving ? "area-preserving" : "conformal"; }
+
+std::optional<MapMethod> find_map_method(std::string_view name) {
+  if (name == "conformal") return MapMethod::kConformal;
+  if (name == "area-preserving") return MapMethod::kAreaPreserving;
+  return std::nullopt;
+}
+
+void MapRequest::validate() const {
+  const bool sphere = domain == Domain::kSphere;
+  if (sphere && !markers.empty() && markers.size() != 3)
+    invalid("sphere {markers} are three vertices (sent to 0, 1, infinity)");
+  if (!sphere && !markers.empty() && markers.size() != 2)
+    invalid("disk {markers} are two vertices: the center and a boundary vertex");
+  for (int v : markers)
+    if (v < 0) invalid("{markers} are vertex numbers; " + std::to_string(v) + " is not");
+  if (sphere && cut_hole) invalid("{cut_hole} applies to the disk domain");
+  if (hole_vertex < -1) invalid("{hole_vertex} must be a vertex number");
+  if (hole_vertex >= 0 && !cut_hole) invalid("{hole_vertex} goes with {cut_hole}");
+  if (!finite_at_least(tolerance, 0)) invalid("{tolerance} must be a positive number");
+  if (max_iterations < 1 || max_iterations > kMaxIterations)
+    invalid("{max_iterations} must lie in [1, " + std::to_string(kMaxIterations) + "]");
+  if (!(t >= 0 && t <= 1)) invalid("{t} must lie in [0, 1]");
+  if (method == MapMethod::kConformal && (t > 0 || !weights.empty()))
+    invalid("{t} and {weights} apply to the area-preserving method");
+  for (size_t i = 0; i < weights.size(); ++i)
+    if (!(weights[i] > 0) || !std::isfinite(weights[i]))
+      invalid("weight " + std::to_string(i) + " is " + std::to_string(weights[i]) + "; {weights} must be positive numbers");
+}
+
+void ShapeRequest::validate() const {
+  const bool sphere = domain == Domain::kSphere;
+  if (sphere && cut_hole) invalid("{cut_hole} applies to the disk domain");
+  if (sphere && refine_rotation)
+    invalid("{refine_rotation} applies to the disk domain (on the sphere the frame's half-turns are compared)");
+  if (!(tolerance > 0) || !std::isfinite(tolerance)) invalid("{tolerance} must be a positive number");
+  if (!finite_at_least(cost_tolerance, 0) || cost_tolerance > 1)
+    invalid("{cost_tolerance} must lie in [0, 1] (0: off)");
+  if (rings < 1 || rings > 4096) invalid("{rings} must lie in [1, 4096]");
+  if (angles < 4 || angles > 65536) invalid("{angles} must lie in [4, 65536]");
+}
+
+void DistanceRequest::validate() const {
+  shape.validate();
+  if (a.given() != b.given()) invalid("give {markers} for both meshes or neither");
+  check_marker_pair(a, "the first mesh's ");
+  check_marker_pair(b, "the second mesh's ");
+}
+
+void MatrixRequest::validate(size_t meshes) const {
+  shape.validate();
+  if (meshes < 2) invalid("a distance matrix needs at least two meshes");
+  if (!markers.empty() && markers.size() != meshes)
+    invalid(std::to_string(markers.size()) + " {markers} for " + std::to_string(meshes) +
+            " meshes (one per mesh, or none)");
+  for (size_t k = 0; k < markers.size(); ++k) {
+    if (!markers[k].given()) invalid("mesh " + std::to_string(k) + " has no {markers} (markers for every mesh or none)");
+    check_marker_pair(markers[k], "mesh " + std::to_string(k) + "'s ");
+  }
+}
+
+std::vector<double> read_weights_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) invalid("cannot read the weights file " + path);
+  std::vector<double> w;
+  std::string tok;
+  while (in >> tok) {
+    char* end = nullptr;
+    const double x = std::strtod(tok.c_str(), &end);
+    if (end == tok.c_str() || *end != '\0' || !(x > 0) || !std::isfinite(x))
+      invalid(path + ": weight " + std::to_string(w.size()) + " is '" + tok + "'; weights must be positive numbers");
+    w.push_back(x);
+  }
+  if (w.empty()) invalid(path + ": no weights");
+  return w;
+}
+
+MarkersFile read_markers_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) invalid("cannot read the markers file " + path);
+  MarkersFile out;
+  out.path = path;
+  std::string line;
+  for (int n = 1; std::getline(in, line); ++n) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty() || line[0] == '#') continue;
+    const size_t c1 = line.find(','), c2 = c1 == std::string::npos ? c1 : line.find(',', c1 + 1);
+    std::optional<int> center, boundary;
+    if (c1 != std::string::npos && c2 != std::string::npos && line.find(',', c2 + 1) == std::string::npos) {
+      center = whole_int(line.substr(c1 + 1, c2 - c1 - 1));
+      boundary = whole_int(line.substr(c2 + 1));
+    }
+    if (c1 == 0 || !center || !boundary || *center < 0 || *boundary < 0)
+      invalid(path + ":" + std::to_string(n) + ": expected mesh,center_vertex,boundary_vertex");
+    out.entries.push_back({line.substr(0, c1), DiskMarkers{*center, *boundary}});
+  }
+  return out;
+}
+
+DiskMarkers MarkersFile::of(const std::string& mesh) const {
+  const std::string stem = std::filesystem::path(mesh).stem().string();
+  for (const std::string& key : {mesh, stem})
+    for (const auto& [name, m] : entries)
+      if (name == key) return m;
+  invalid(path + " has no markers for " + mesh + " (markers for every mesh or none)");
+}
+
+}  // namespace jobs
+}  // namespace brenier

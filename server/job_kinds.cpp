@@ -1,0 +1,291 @@
+#include "job_kinds.hpp"
+
+#include <google/protobuf/util/time_util.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+
+#include "common/error.hpp"
+#include "common/parallel.hpp"
+#include "spec.hpp"
+
+namespace brenier::server {
+namespace fs = std::filesystem;
+using google::protobuf::util::TimeUtil;
+
+namespace {
+
+// The same checks the core makes when the job runs, made at submission from the mesh's
+// record, so that a spec that cannot run is refused at once.
+void require_fits(const pb::Mesh& m, jobs::Domain domain, bool cut_hole) {
+  const bool sphere = domain == jobs::Domain::kSphere;
+  const char* cls = m.topology_class() == pb::TOPOLOGICAL_DISK     ? "disk"
+                    : m.topology_class() == pb::TOPOLOGICAL_SPHERE ? "sphere"
+                                                                   : "other";
+  if (sphere && m.topology_class() != pb::TOPOLOGICAL_SPHERE)
+    invalid("mesh " + m.name() + " (" + m.id().substr(0, 12) + ") is a " + cls +
+            " mesh; the sphere domain needs a closed genus-0 surface");
+  if (!sphere && m.topology_class() != pb::TOPOLOGICAL_DISK && !(cut_hole && m.topology_class() == pb::TOPOLOGICAL_SPHERE))
+    invalid("mesh " + m.name() + " (" + m.id().substr(0, 12) + ") is a " + cls +
+            " mesh; the disk domain needs a topological disk" +
+            (m.topology_class() == pb::TOPOLOGICAL_SPHERE ? " (set {cut_hole} to open it)" : ""));
+}
+
+mesh::Format output_format(const std::string& f) {
+  if (f.empty()) return mesh::Format::kObj;
+  const auto p = mesh::parse_format(f);
+  if (!p || *p == mesh::Format::kStl || *p == mesh::Format::kFreeSurfer)
+    invalid("{output_format} '" + f + "' is not one of obj, ply, off");
+  return *p;
+}
+
+std::string check_map(const pb::MapSpec& s, const MeshLookup& mesh, const SpecLimits& limits) {
+  // One weight per vertex of the input file, checked when the job reads it; bounded here.
+  if (s.weights_size() > limits.max_vertices)
+    invalid(std::to_string(s.weights_size()) + " {weights}; this server takes meshes of at most " +
+            std::to_string(limits.max_vertices) + " vertices");
+  const jobs::MapRequest r = spec::from_proto(s);
+  output_format(s.output_format());
+  require_fits(mesh(s.mesh()), r.domain, r.cut_hole);
+  return "map";
+}
+
+std::string check_distance(const pb::DistanceSpec& s, const MeshLookup& mesh) {
+  const jobs::DistanceRequest r = spec::from_proto(s);
+  require_fits(mesh(s.a()), r.shape.domain, r.shape.cut_hole);
+  require_fits(mesh(s.b()), r.shape.domain, r.shape.cut_hole);
+  return "distance";
+}
+
+std::string check_matrix(const pb::MatrixSpec& s, const MeshLookup& mesh, const SpecLimits& limits) {
+  if (s.meshes_size() > limits.max_matrix_meshes)
+    fail(ErrorCode::kResourceExhausted, "a matrix job takes at most " + std::to_string(limits.max_matrix_meshes) +
+                                            " meshes");
+  const jobs::MatrixRequest r = spec::from_proto(s);
+  std::set<std::string> seen;
+  for (const std::string& id : s.meshes()) {
+    if (!seen.insert(id).second) invalid("mesh " + id + " is given twice");
+    require_fits(mesh(id), r.shape.domain, r.shape.cut_hole);
+  }
+  return "matrix";
+}
+
+pb::Artifact artifact(Store& store, const std::string& name, const std::string& media, const std::string& filename,
+                      const std::string& bytes) {
+  pb::Artifact a;
+  a.set_name(name);
+  a.set_media_type(media);
+  a.set_filename(filename);
+  a.set_size_bytes(static_cast<int64_t>(bytes.size()));
+  a.set_sha256(store.put_blob(Store::Blob::kResult, bytes));
+  return a;
+}
+
+std::string read_whole(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) fail(ErrorCode::kInternal, "cannot read " + path);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+}  // namespace
+
+std::string check_spec(const pb::SubmitJobRequest& request, const MeshLookup& mesh, const SpecLimits& limits) {
+  switch (request.spec_case()) {
+    case pb::SubmitJobRequest::kMap: return check_map(request.map(), mesh, limits);
+    case pb::SubmitJobRequest::kDistance: return check_distance(request.distance(), mesh);
+    case pb::SubmitJobRequest::kMatrix: return check_matrix(request.matrix(), mesh, limits);
+    default: invalid("the job has no spec (map, distance or matrix)");
+  }
+}
+
+jobs::ProgressSink JobContext::sink() {
+  return [this](const jobs::Progress& p) {
+    pb::JobEvent e;
+    e.set_job_id(live.job.id());
+    e.set_state(pb::RUNNING);
+    e.set_stage(p.stage);
+    e.set_fraction(p.fraction);
+    e.set_iteration(p.iteration);
+    e.set_residual(p.residual);
+    *e.mutable_time() = TimeUtil::GetCurrentTime();
+    {
+      std::lock_guard<std::mutex> lock(live.mutex);
+      live.job.set_stage(p.stage);
+      live.job.set_fraction(p.fraction);
+    }
+    publish(e);
+    return keep_going();
+  };
+}
+
+void JobContext::check() const {
+  if (!keep_going()) fail(ErrorCode::kCancelled, "cancelled");
+}
+
+mesh::CleanMesh JobContext::load(const std::string& id, pb::Mesh* record) {
+  auto m = store.get_mesh(tenant, id);
+  if (!m || !store.has_blob(Store::Blob::kMesh, id)) invalid("mesh " + id + " was deleted");
+  if (record) *record = *m;
+  const auto format = mesh::parse_format(m->format());
+  return mesh::clean(mesh::read_soup(read_whole(store.blob_path(Store::Blob::kMesh, id)), *format));
+}
+
+namespace {
+
+pb::JobResult run_map_job(JobContext& c, const pb::MapSpec& s) {
+  pb::Mesh rec;
+  const mesh::CleanMesh cm = c.load(s.mesh(), &rec);
+  const jobs::MapRequest r = spec::from_proto(s);
+  const mesh::Format format = output_format(s.output_format());
+  const jobs::MapOutcome m = jobs::run_map(cm, rec.name(), r, c.sink());
+  c.check();
+  pb::JobResult out;
+  const std::string ext = mesh::format_name(format);
+  const std::string stem = rec.name() + "-" + jobs::domain_name(r.domain) + "-" + jobs::map_method_name(r.method);
+  *out.add_artifacts() = artifact(c.store, "mesh", format == mesh::Format::kObj ? "model/obj" : "application/octet-stream",
+                                  stem + "." + ext, jobs::map_mesh_bytes(m, format));
+  *out.add_artifacts() = artifact(c.store, "report", "application/json", stem + ".json", m.report.dump(2));
+  out.set_converged(true);
+  return out;
+}
+
+pb::JobResult run_distance_job(JobContext& c, const pb::DistanceSpec& s) {
+  const jobs::DistanceRequest r = spec::from_proto(s);
+  pb::Mesh ra, rb;
+  const mesh::CleanMesh a = c.load(s.a(), &ra), b = c.load(s.b(), &rb);
+  distance::ShapeInput ia = jobs::shape_input(a, ra.name(), ra.name(), r.shape, r.a);
+  distance::ShapeInput ib = jobs::shape_input(b, rb.name(), rb.name(), r.shape, r.b);
+  if (ia.name == ib.name) ib.name += " (b)";
+  jobs::DistanceOutcome d = jobs::run_distance(ia, ib, r.shape, hardware_threads(), c.sink());
+  c.check();
+  if (!d.result.converged) fail(ErrorCode::kNotConverged, jobs::not_converged_message(d.result));
+  d.report["a"] = s.a();
+  d.report["b"] = s.b();
+  pb::JobResult out;
+  *out.add_artifacts() = artifact(c.store, "report", "application/json", "distance.json", d.report.dump(2));
+  out.set_distance(d.result.distance);
+  out.set_converged(true);
+  return out;
+}
+
+// A matrix as groups of tasks on the shared pool: every shape once (cached by content hash
+// under DATA/shapes, reused by later jobs), then tiles of pairs, each kept in a work
+// directory as it finishes so that a run interrupted by a restart redoes only the missing
+// tiles; the tiles are assembled as `brenier-compute merge` does.
+pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::string& job_id = c.live.job.id();
+  const jobs::MatrixRequest request = spec::from_proto(s);
+  const jobs::ShapeRequest& r = request.shape;
+  const int n = s.meshes_size();
+  std::vector<distance::ShapeInput> in(n);
+  std::map<std::string, int> names;
+  c.scheduler.run_group(n, [&](int k) {
+    c.check();
+    pb::Mesh rec;
+    const mesh::CleanMesh cm = c.load(s.meshes(k), &rec);
+    in[k] = jobs::shape_input(cm, rec.name(), rec.name(), r,
+                              request.markers.empty() ? jobs::DiskMarkers{} : request.markers[k]);
+  });
+  for (int k = 0; k < n; ++k) ++names[in[k].name];
+  for (int k = 0; k < n; ++k)
+    if (names[in[k].name] > 1) in[k].name.append("#").append(s.meshes(k), 0, 12);
+  const std::string cache = c.store.dir() + "/shapes";
+  fs::create_directories(cache);
+  std::mutex progress_mutex;
+  int shapes_done = 0;
+  auto cancel_only = [&](int, double) { return c.keep_going(); };
+  c.scheduler.run_group(n, [&](int k) {
+    c.check();
+    distance::cached_shape(in[k], cache, cancel_only);
+    std::lock_guard<std::mutex> lock(progress_mutex);
+    ++shapes_done;
+    c.sink()(jobs::Progress{"shapes", 0.5 * shapes_done / n, shapes_done, 0});
+  });
+  const int pairs = n * (n - 1) / 2;
+  const int tiles = std::max(1, std::min(pairs, 4 * c.scheduler.workers()));
+  const std::string work = c.store.dir() + "/work/" + job_id;
+  fs::create_directories(work);
+  distance::MatrixOptions mo;
+  mo.method = r.method;
+  mo.wasserstein = jobs::wasserstein_options(r);
+  mo.jobs = 1;
+  mo.cache_dir = cache;
+  mo.solver_progress = cancel_only;
+  std::vector<distance::MatrixTile> done(tiles);
+  int tiles_done = 0;
+  c.scheduler.run_group(tiles, [&](int k) {
+    c.check();
+    const std::string path = work + "/tile-" + std::to_string(k) + ".json";
+    distance::MatrixOptions o = mo;
+    o.tile = {k, tiles};
+    bool reused = false;
+    if (fs::exists(path)) {
+      try {
+        distance::MatrixTile t = distance::read_tile(path);
+        if (t.tile.index == k && t.tile.count == tiles && static_cast<int>(t.names.size()) == n &&
+            t.keys.front() == distance::shape_key(in.front().mesh, in.front().options)) {
+          done[k] = std::move(t);
+          reused = true;
+        }
+      } catch (const Error&) {
+      }
+    }
+    if (!reused) {
+      done[k] = distance::compute_tile(in, o);
+      distance::write_tile(done[k], path + ".tmp");
+      fs::rename(path + ".tmp", path);
+    }
+    std::lock_guard<std::mutex> lock(progress_mutex);
+    ++tiles_done;
+    c.sink()(jobs::Progress{"pairs", 0.5 + 0.5 * tiles_done / tiles, tiles_done, 0});
+  });
+  c.check();
+  const Eigen::MatrixXd d = distance::assemble(done);  // checks the tiles belong together
+  const std::vector<std::string>& nm = done.front().names;
+  nlohmann::json failed = nlohmann::json::array();
+  for (const auto& t : done)
+    for (const auto& e : t.pairs)
+      if (!e.result.converged) failed.push_back({nm[e.i], nm[e.j]});
+  pb::JobResult out;
+  auto matrix_file = [&](const std::string& ext) {
+    const std::string tmp = c.store.temp_path() + "." + ext;
+    distance::write_matrix(tmp, nm, d, done.front().method);
+    std::string bytes = read_whole(tmp);
+    fs::remove(tmp);
+    return bytes;
+  };
+  *out.add_artifacts() = artifact(c.store, "matrix", "text/csv", "matrix.csv", matrix_file("csv"));
+  *out.add_artifacts() = artifact(c.store, "matrix.npy", "application/octet-stream", "matrix.npy", matrix_file("npy"));
+  nlohmann::json report = {{"method", done.front().method},
+                           {"domain", jobs::domain_name(r.domain)},
+                           {"shapes", nm},
+                           {"meshes", std::vector<std::string>(s.meshes().begin(), s.meshes().end())},
+                           {"pairs", pairs},
+                           {"tiles", tiles},
+                           {"not_converged", failed},
+                           {"seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
+  *out.add_artifacts() = artifact(c.store, "report", "application/json", "matrix.json", report.dump(2));
+  out.set_converged(failed.empty());
+  std::error_code ec;
+  fs::remove_all(work, ec);
+  return out;
+}
+
+}  // namespace
+
+pb::JobResult run_spec(JobContext& c, const pb::SubmitJobRequest& spec) {
+  switch (spec.spec_case()) {
+    case pb::SubmitJobRequest::kMap: return run_map_job(c, spec.map());
+    case pb::SubmitJobRequest::kDistance: return run_distance_job(c, spec.distance());
+    case pb::SubmitJobRequest::kMatrix: return run_matrix_job(c, spec.matrix());
+    default: invalid("the job has no spec");
+  }
+}
+
+}  // namespace brenier::server

@@ -1,0 +1,116 @@
+#include "request_flags.hpp"
+
+#include <map>
+
+namespace brenier::options {
+namespace {
+
+// An enum option given by name: the name becomes the enum's number for CLI11 to store, and
+// anything else is refused with the names to choose from.
+template <class E>
+CLI::Validator choices(std::map<std::string, E> names) {
+  std::string list;
+  for (const auto& [name, value] : names) list += (list.empty() ? "" : ", ") + name;
+  return CLI::Validator(
+      [names, list](std::string& in) -> std::string {
+        auto it = names.find(in);
+        if (it == names.end()) return "'" + in + "' is not one of " + list;
+        in = std::to_string(static_cast<int>(it->second));
+        return {};
+      },
+      "{" + list + "}");
+}
+
+}  // namespace
+
+void MapFlags::add_to(CLI::App* cmd) {
+  jobs::MapRequest& r = request;
+  cmd->add_option("--domain", r.domain, "disk or sphere")
+      ->transform(choices<jobs::Domain>({{"disk", jobs::Domain::kDisk}, {"sphere", jobs::Domain::kSphere}}));
+  cmd->add_option("--method", r.method, "conformal (Alg. 1) or area-preserving (Alg. 3)")
+      ->transform(choices<jobs::MapMethod>(
+          {{"conformal", jobs::MapMethod::kConformal}, {"area-preserving", jobs::MapMethod::kAreaPreserving}}));
+  cmd->add_option("--markers", r.markers,
+                  "input vertex numbers: disk center,boundary (sent to 0 and 1); sphere v0,v1,vinf (sent to 0, 1, infinity)")
+      ->delimiter(',');
+  cmd->add_flag("--cut-hole", r.cut_hole, "disk: open a closed genus-0 mesh by removing one vertex's star");
+  cmd->add_option("--hole-vertex", r.hole_vertex, "with --cut-hole: the vertex whose star is removed")
+      ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--tolerance", r.tolerance,
+                  "conformal: max |K - Kbar| (radians, default 1e-7); area-preserving: max relative "
+                  "cell-mass error (default 1e-8)")
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--max-iterations", r.max_iterations, "Newton iterations (default 200)")
+      ->check(CLI::Range(1, jobs::MapRequest::kMaxIterations));
+  cmd->add_option("--weights", weights_file,
+                  "area-preserving: file of one positive weight per input vertex (region of interest)");
+  cmd->add_option("--t", r.t, "area-preserving: the polar-factorization map phi_t, 0 area-preserving .. 1 conformal")
+      ->check(CLI::Range(0.0, 1.0));
+  cmd->add_flag("--allow-flips", r.allow_flips, "return a map even if it folds faces");
+}
+
+jobs::MapRequest MapFlags::resolve() const {
+  jobs::MapRequest r = request;
+  if (!weights_file.empty()) r.weights = jobs::read_weights_file(weights_file);
+  r.validate();
+  return r;
+}
+
+void ShapeFlags::add_to(CLI::App* cmd) {
+  jobs::ShapeRequest& r = request;
+  cmd->add_option("--method", r.method, "wasserstein (exact, Alg. 5) or omt-linear (Def. 2.24 as an embedding)")
+      ->transform(choices<distance::Method>(
+          {{"wasserstein", distance::Method::kWasserstein}, {"omt-linear", distance::Method::kOmtLinear}}));
+  cmd->add_option("--domain", r.domain,
+                  "disk (topological disks; closed genus-0 surfaces with --cut-hole) or sphere (closed genus-0 "
+                  "surfaces; wasserstein with the squared chordal cost)")
+      ->transform(choices<jobs::Domain>({{"disk", jobs::Domain::kDisk}, {"sphere", jobs::Domain::kSphere}}));
+  cmd->add_flag("--cut-hole", r.cut_hole, "open closed genus-0 meshes into disks by removing one vertex's star");
+  cmd->add_option("--tolerance", r.tolerance,
+                  "wasserstein: max relative cell-mass error of each transport (default 1e-3; the distance is read "
+                  "from the dual, accurate to about the square of it)")
+      ->check(CLI::PositiveNumber);
+  cmd->add_option("--cost-tolerance", r.cost_tolerance,
+                  "wasserstein: or stop each transport once its cost is known to this relative accuracy (the "
+                  "Newton decrement; default 1e-6, 0: off)")
+      ->check(CLI::Range(0.0, 1.0));
+  cmd->add_flag("--refine-rotation", r.refine_rotation,
+                "wasserstein without markers: refine the rotation beyond the quadrature's step by exact "
+                "evaluations (3-4 times the work)");
+  cmd->add_flag("--raw", r.raw, "wasserstein: eq. 3.31 as it stands, without removing the sites' quantization cost");
+  cmd->add_option("--rings", r.rings, "quadrature rings of the OMT-map samples (default 64)")->check(CLI::Range(1, 4096));
+  cmd->add_option("--angles", r.angles, "quadrature angles per ring (default 256)")->check(CLI::Range(4, 65536));
+}
+
+void DistanceFlags::add_to(CLI::App* cmd) {
+  shape.add_to(cmd);
+  cmd->add_option("--center-a", a.center, "interior marker of the first mesh (sent to 0)")->check(CLI::NonNegativeNumber);
+  cmd->add_option("--boundary-a", a.boundary, "boundary marker of the first mesh (sent to 1)")
+      ->check(CLI::NonNegativeNumber);
+  cmd->add_option("--center-b", b.center, "interior marker of the second mesh")->check(CLI::NonNegativeNumber);
+  cmd->add_option("--boundary-b", b.boundary, "boundary marker of the second mesh")->check(CLI::NonNegativeNumber);
+}
+
+jobs::DistanceRequest DistanceFlags::resolve() const {
+  jobs::DistanceRequest r{shape.request, a, b};
+  r.validate();
+  return r;
+}
+
+void MatrixFlags::add_to(CLI::App* cmd) {
+  shape.add_to(cmd);
+  cmd->add_option("--markers", markers_file, "file of lines mesh,center_vertex,boundary_vertex (every mesh)");
+}
+
+jobs::MatrixRequest MatrixFlags::resolve(const std::vector<std::string>& meshes) const {
+  jobs::MatrixRequest r;
+  r.shape = shape.request;
+  if (!markers_file.empty()) {
+    const jobs::MarkersFile file = jobs::read_markers_file(markers_file);
+    for (const std::string& m : meshes) r.markers.push_back(file.of(m));
+  }
+  r.validate(meshes.size());
+  return r;
+}
+
+}  // namespace brenier::options

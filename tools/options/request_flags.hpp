@@ -1,0 +1,48 @@
+// The command-line flags of the job requests (core/jobs/requests.hpp), declared once and
+// shared by brenier-compute (the engine on files) and brenier (the thin client of brenierd),
+// so that a flag means the same, with the same checks, in both.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <string>
+
+#include "jobs/requests.hpp"
+
+namespace brenier::options {
+
+/// map: --domain --method --markers --cut-hole --hole-vertex --tolerance --max-iterations
+/// --weights FILE --t --allow-flips.
+struct MapFlags {
+  jobs::MapRequest request;
+  std::string weights_file;
+  void add_to(CLI::App* cmd);
+  /// The request with the weights file read, validated.
+  jobs::MapRequest resolve() const;
+};
+
+/// distance and matrix: --method --domain --cut-hole --tolerance --cost-tolerance
+/// --refine-rotation --raw --rings --angles.
+struct ShapeFlags {
+  jobs::ShapeRequest request;
+  void add_to(CLI::App* cmd);
+};
+
+/// distance: --center-a --boundary-a --center-b --boundary-b with the shape flags.
+struct DistanceFlags {
+  ShapeFlags shape;
+  jobs::DiskMarkers a, b;
+  void add_to(CLI::App* cmd);
+  jobs::DistanceRequest resolve() const;
+};
+
+/// matrix: --markers FILE (a markers file, requests.hpp) with the shape flags.
+struct MatrixFlags {
+  ShapeFlags shape;
+  std::string markers_file;
+  void add_to(CLI::App* cmd);
+  /// The request for these meshes (as given on the command line), markers looked up in
+  /// the markers file, validated.
+  jobs::MatrixRequest resolve(const std::vector<std::string>& meshes) const;
+};
+
+}  // namespace brenier::options
