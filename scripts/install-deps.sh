@@ -28,6 +28,8 @@ PACKAGES=(
   # sanitizer and libFuzzer runtimes, LLVM's OpenMP runtime (with Archer, which tells TSan
   # about OpenMP's synchronization) and llvm-symbolizer for readable reports.
   clang libclang-rt-14-dev libomp-14-dev llvm-14
+  # The lint test of function sizes (scripts/check-function-sizes.sh).
+  universal-ctags
 )
 
 missing=()
