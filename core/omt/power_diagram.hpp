@@ -126,7 +126,9 @@ class PowerDiagrams {
   std::vector<int> locate(const Eigen::VectorXd& h, const Points& queries) const;
 
  private:
+  struct Triangulation;
   std::optional<PowerCells> build(const Eigen::VectorXd& psi, const Eigen::VectorXd& lo, bool fail_if_hidden) const;
+  const Triangulation* regular(const Eigen::VectorXd& psi, bool fail_if_hidden, Triangulation& fresh) const;
   Domain domain_;
   Points sites_;
   std::vector<int> order_;  // Hilbert order of the sites
@@ -137,7 +139,6 @@ class PowerDiagrams {
   mutable std::vector<int> start_triangle_;
   // The last regular triangulation that held every site, kept so that the next heights
   // (a Newton step away) are reached by edge flips instead of a new triangulation.
-  struct Triangulation;
   mutable std::unique_ptr<Triangulation> last_;
 };
 

@@ -1,0 +1,145 @@
+#include "omt/regular_triangulation.hpp"
+
+#include <algorithm>
+#include <utility>
+
+#include "common/check.hpp"
+
+namespace brenier::omt {
+namespace regular {
+namespace {
+
+// A vertex of degree 3 whose lifted point lies above the plane through its three
+// neighbours' is above the lower convex hull of the lifted sites: its site is hidden for
+// certain, whatever the rest of the triangulation.
+bool surely_hidden(const RT& rt, RT::Vertex_handle v, const PowerTest& power) {
+  RT::Vertex_circulator w = rt.incident_vertices(v), end = w;
+  RT::Vertex_handle around[3];
+  int k = 0;
+  do {
+    if (k == 3 || rt.is_infinite(w)) return false;
+    around[k++] = w;
+  } while (++w != end);
+  return k == 3 && power(around[0]->point(), around[1]->point(), around[2]->point(), v->point()) ==
+                       CGAL::ON_NEGATIVE_SIDE;
+}
+
+}  // namespace
+
+bool triangulate(const Points& sites, const Eigen::VectorXd& psi, const std::vector<int>& order, bool fail_if_hidden,
+                 RT& rt) {
+  const int n = static_cast<int>(sites.rows());
+  RT::Face_handle hint;
+  const int check_every = std::max(256, n / 64);
+  for (int k = 0; k < n; ++k) {
+    const int i = order[k];
+    const WP p(K::Point_2(sites(i, 0), sites(i, 1)), 2 * psi[i]);
+    RT::Vertex_handle v = rt.insert(p, hint);
+    if (v == RT::Vertex_handle()) continue;
+    v->info() = i;
+    hint = v->face();
+    if (fail_if_hidden && (k + 1) % check_every == 0 && rt.number_of_hidden_vertices() > 0) return false;
+  }
+  return !(fail_if_hidden && rt.number_of_hidden_vertices() > 0);
+}
+
+Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& vertex, const Points& sites,
+                             const Eigen::VectorXd& old_psi, const Eigen::VectorXd& psi, bool stop_if_hidden) {
+  const int n = static_cast<int>(sites.rows());
+  if (rt.dimension() != 2) return Reweighted::kStuck;
+  auto set_weights = [&](const Eigen::VectorXd& offsets) {
+    for (int i = 0; i < n; ++i) vertex[i]->point() = WP(vertex[i]->point().point(), 2 * offsets[i]);
+  };
+  set_weights(psi);
+  const PowerTest power;
+  const auto orientation = Traits().orientation_2_object();
+  using Edge = std::pair<RT::Vertex_handle, RT::Vertex_handle>;
+  // Whether edge e is still there, between two finite faces, with the vertex across from
+  // face f strictly inside f's power circle (f, i: the edge as face and opposite index).
+  auto violates = [&](const Edge& e, RT::Face_handle& f, int& i) {
+    if (!rt.is_edge(e.first, e.second, f, i)) return false;
+    const RT::Face_handle g = f->neighbor(i);
+    if (rt.is_infinite(f) || rt.is_infinite(g)) return false;  // a hull edge stays
+    return power(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point(),
+                 g->vertex(rt.mirror_index(f, i))->point()) == CGAL::ON_POSITIVE_SIDE;
+  };
+  std::vector<Edge> queue, stuck, flipped;
+  queue.reserve(3 * static_cast<size_t>(n));
+  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
+    queue.emplace_back(e->first->vertex(RT::cw(e->second)), e->first->vertex(RT::ccw(e->second)));
+  const size_t max_flips = 20 * static_cast<size_t>(n) + 1000;
+  bool ok = true, hidden = false;
+  while (ok && !queue.empty()) {
+    const size_t flips_before = flipped.size();
+    while (ok && !queue.empty()) {
+      const Edge e = queue.back();
+      queue.pop_back();
+      RT::Face_handle f;
+      int i;
+      if (!violates(e, f, i)) continue;
+      const RT::Vertex_handle c = f->vertex(i), a = f->vertex(RT::ccw(i)), b = f->vertex(RT::cw(i));
+      const RT::Vertex_handle d = f->neighbor(i)->vertex(rt.mirror_index(f, i));
+      if (orientation(c->point().point(), a->point().point(), d->point().point()) != CGAL::POSITIVE ||
+          orientation(c->point().point(), d->point().point(), b->point().point()) != CGAL::POSITIVE) {
+        // Not convex: the reflex corner a or b may be a site to hide (no flip can).
+        if (stop_if_hidden && (surely_hidden(rt, a, power) || surely_hidden(rt, b, power))) {
+          hidden = true;
+          ok = false;
+        }
+        stuck.push_back(e);
+        continue;
+      }
+      rt.flip(f, i);
+      flipped.emplace_back(c, d);
+      if (flipped.size() > max_flips) ok = false;
+      queue.emplace_back(c, a);
+      queue.emplace_back(a, d);
+      queue.emplace_back(d, b);
+      queue.emplace_back(b, c);
+    }
+    // Edges that could not be flipped may have become regular or flippable since.
+    if (!stuck.empty()) {
+      if (flipped.size() == flips_before) {
+        for (const Edge& e : stuck) {
+          RT::Face_handle f;
+          int i;
+          if (violates(e, f, i)) ok = false;
+        }
+        stuck.clear();
+      } else {
+        queue.swap(stuck);
+        stuck.clear();
+      }
+    }
+  }
+  if (ok) return Reweighted::kRegular;
+  for (auto e = flipped.rbegin(); e != flipped.rend(); ++e) {
+    RT::Face_handle f;
+    int i;
+    const bool found = rt.is_edge(e->first, e->second, f, i);
+    BRENIER_CHECK(found, "an edge flipped by the power-diagram update has disappeared");
+    rt.flip(f, i);
+  }
+  set_weights(old_psi);
+  return hidden ? Reweighted::kHidden : Reweighted::kStuck;
+}
+
+}  // namespace regular
+
+namespace detail {
+using regular::K;
+using regular::PowerTest;
+using regular::WP;
+namespace {
+WP weighted(const double a[3]) { return WP(K::Point_2(a[0], a[1]), a[2]); }
+}  // namespace
+int power_side(const double p[3], const double q[3], const double r[3], const double t[3]) {
+  return static_cast<int>(PowerTest()(weighted(p), weighted(q), weighted(r), weighted(t)));
+}
+int power_side_exact(const double p[3], const double q[3], const double r[3], const double t[3]) {
+  return static_cast<int>(PowerTest::Exact()(weighted(p), weighted(q), weighted(r), weighted(t)));
+}
+}  // namespace detail
+
+
+}  // namespace brenier::omt
