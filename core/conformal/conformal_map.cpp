@@ -464,51 +464,56 @@ int repair_planar_folds(const mesh::TriMesh& m, mesh::Vertices& X, const std::ve
   return replaced_total;
 }
 
-ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
-  mesh::require_domain(mesh::compute_topology(m), mesh::Domain::kDisk);
-  const int nv = m.num_vertices();
-  std::vector<int> loop = mesh::boundary_loops(m).at(0);
-  const int first_boundary = loop.front();
-  IntrinsicTriangulation T(m);
-  const auto& on_boundary = T.boundary_vertex();
+namespace {
+
+void check_disk_markers(const ConformalOptions& opt, int nv, const std::vector<char>& on_boundary) {
   if (opt.center_vertex) {
-    int c = *opt.center_vertex;
+    const int c = *opt.center_vertex;
     if (c < 0 || c >= nv) invalid("center vertex " + std::to_string(c) + " is out of range");
     if (on_boundary[c]) invalid("center vertex " + std::to_string(c) + " is on the boundary; it must be interior");
   }
   if (opt.boundary_vertex) {
-    int b = *opt.boundary_vertex;
+    const int b = *opt.boundary_vertex;
     if (b < 0 || b >= nv) invalid("boundary marker " + std::to_string(b) + " is out of range");
     if (!on_boundary[b]) invalid("boundary marker " + std::to_string(b) + " is not on the boundary");
   }
+}
 
-  // Boundary half-edges keep their identity through flips (only interior edges flip).
-  std::vector<int> boundary_he(nv, -1);
-  for (int h = 0; h < T.num_halfedges(); ++h)
-    if (T.on_boundary(h)) boundary_he[T.origin(h)] = h;
-  for (int v : loop) BRENIER_CHECK(boundary_he[v] >= 0, "boundary vertex " << v << " has no boundary edge");
+// The boundary loop of the flow's intrinsic triangulation: its vertices in order (mesh
+// vertices, then split points) and each one's boundary half-edge, which keeps its identity
+// through flips (only interior edges flip).
+struct FlowBoundary {
+  std::vector<int> loop;
+  std::vector<int> halfedge;  // by vertex
+
+  FlowBoundary(const IntrinsicTriangulation& T, std::vector<int> boundary_loop, int nv)
+      : loop(std::move(boundary_loop)), halfedge(nv, -1) {
+    for (int h = 0; h < T.num_halfedges(); ++h)
+      if (T.on_boundary(h)) halfedge[T.origin(h)] = h;
+    for (int v : loop) BRENIER_CHECK(halfedge[v] >= 0, "boundary vertex " << v << " has no boundary edge");
+  }
+
   // A boundary edge facing a nearly flat angle (scanned meshes have 0.03 degree slivers)
   // leaves the flow no room: the triangle cannot be flipped and the smallest change of u
   // breaks its triangle inequality. Such edges are split intrinsically (extra boundary
   // vertices that take part in the flow but not in the output) until every boundary edge
-  // faces an angle below 2 pi / 3 -- before the flow, and again whenever the flow gets stuck
-  // against such a triangle.
-  Eigen::VectorXd u = Eigen::VectorXd::Zero(nv);
-  auto refine_boundary = [&](double threshold) {
+  // faces an angle below `threshold`. Returns the splits made.
+  int refine(IntrinsicTriangulation& T, Eigen::VectorXd& u, double threshold) {
+    const int nv = static_cast<int>(halfedge.size());
     std::vector<int> refined;
     refined.reserve(loop.size());
     std::vector<int> todo(loop.rbegin(), loop.rend());  // stack of vertices, loop order
     int splits = 0;
     while (!todo.empty()) {
-      int v = todo.back();
+      const int v = todo.back();
       todo.pop_back();
       refined.push_back(v);
-      int h = boundary_he[v], h1 = T.next(h), h2 = T.next(h1);
-      double opposite = corner_angle(T.length(h, u), T.length(h1, u), T.length(h2, u));
+      const int h = halfedge[v], h1 = T.next(h), h2 = T.next(h1);
+      const double opposite = corner_angle(T.length(h, u), T.length(h1, u), T.length(h2, u));
       if (opposite > threshold && splits < 2 * nv + 64) {
-        int mid = T.split_boundary_edge(h, u);
+        const int mid = T.split_boundary_edge(h, u);
         ++splits;
-        boundary_he.push_back(T.num_halfedges() - 2);  // the new mid -> j half-edge
+        halfedge.push_back(T.num_halfedges() - 2);  // the new mid -> j half-edge
         refined.pop_back();
         todo.push_back(mid);  // re-examine both halves: v's edge now ends at mid
         todo.push_back(v);
@@ -516,38 +521,52 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
     }
     loop = std::move(refined);
     return splits;
-  };
-  refine_boundary(2 * std::numbers::pi / 3);
-  T.make_delaunay_isometric();
+  }
+};
 
-  std::vector<double> L(loop.size()), turning, tau;
-  TargetCurvature target = [&](const IntrinsicTriangulation& tri, const Eigen::VectorXd& u) {
+// Flat inside (Alg. 1 with Kbar = 0) and, on the boundary, the turning angles of the polygon
+// inscribed in a circle with the current boundary edge lengths, with its constraint.
+TargetCurvature inscribed_boundary_target(const FlowBoundary& boundary) {
+  struct Scratch {
+    std::vector<double> L, turning, tau;
+  };
+  auto scratch = std::make_shared<Scratch>();
+  return [&boundary, scratch](const IntrinsicTriangulation& tri, const Eigen::VectorXd& u) {
     Target t;
     const int nt = tri.num_vertices();  // mesh vertices, then the boundary split points
-    t.K = Eigen::VectorXd::Zero(nt);  // flat inside (Alg. 1 with Kbar = 0)
+    t.K = Eigen::VectorXd::Zero(nt);
+    const std::vector<int>& loop = boundary.loop;
     const size_t m = loop.size();
+    std::vector<double>& L = scratch->L;
     L.resize(m);
-    for (size_t i = 0; i < m; ++i) L[i] = tri.length(boundary_he[loop[i]], u);
-    inscribed_targets(L, turning, tau);
-    for (size_t i = 0; i < m; ++i) t.K[loop[i]] = turning[i];
-    if (!tau.empty()) {
-      t.w = Eigen::VectorXd::Zero(nt);
-      double sum = 0;
-      for (size_t j = 0; j < m; ++j) {
-        int a = loop[j], b = loop[(j + 1) % m];
-        double h = 0.5 * tau[j];
-        t.M.emplace_back(a, a, h);
-        t.M.emplace_back(b, b, h);
-        t.M.emplace_back(a, b, h);
-        t.M.emplace_back(b, a, h);
-        t.w[a] += tau[j];
-        t.w[b] += tau[j];
-        sum += tau[j];
-      }
-      t.c = 0.5 / sum;
+    for (size_t i = 0; i < m; ++i) L[i] = tri.length(boundary.halfedge[loop[i]], u);
+    inscribed_targets(L, scratch->turning, scratch->tau);
+    for (size_t i = 0; i < m; ++i) t.K[loop[i]] = scratch->turning[i];
+    const std::vector<double>& tau = scratch->tau;
+    if (tau.empty()) return t;
+    t.w = Eigen::VectorXd::Zero(nt);
+    double sum = 0;
+    for (size_t j = 0; j < m; ++j) {
+      const int a = loop[j], b = loop[(j + 1) % m];
+      const double h = 0.5 * tau[j];
+      t.M.emplace_back(a, a, h);
+      t.M.emplace_back(b, b, h);
+      t.M.emplace_back(a, b, h);
+      t.M.emplace_back(b, a, h);
+      t.w[a] += tau[j];
+      t.w[b] += tau[j];
+      sum += tau[j];
     }
+    t.c = 0.5 / sum;
     return t;
   };
+}
+
+// The flow in rounds: when it is blocked against a boundary triangle, the boundary is split
+// further and the flow resumes from where it stopped.
+YamabeResult disk_flow(IntrinsicTriangulation& T, FlowBoundary& boundary, Eigen::VectorXd& u,
+                       const ConformalOptions& opt) {
+  const TargetCurvature target = inscribed_boundary_target(boundary);
   YamabeOptions yo;
   yo.tolerance = opt.tolerance;
   yo.max_iterations = opt.max_iterations;
@@ -555,7 +574,7 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
   // One kept factor for every round: a round restarted after boundary splits preconditions
   // with the last factor (GMRES absorbs the few new vertices) instead of factoring afresh.
   yo.kept_factor = make_kept_factor();
-  const int pinned = loop.front();
+  const int pinned = boundary.loop.front();
   auto pin = [&]() {
     std::vector<char> fixed(T.num_vertices(), 0);
     fixed[pinned] = 1;
@@ -567,21 +586,22 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
     u = yr.u;
     yo.max_iterations = opt.max_iterations - total_iterations;
     if (!yr.blocked) break;  // stuck for another reason: report it
-    if (refine_boundary(2 * std::numbers::pi / 3) == 0 && refine_boundary(std::numbers::pi / 2) == 0)
+    if (boundary.refine(T, u, 2 * std::numbers::pi / 3) == 0 && boundary.refine(T, u, std::numbers::pi / 2) == 0)
       yo.stop_when_blocked = false;  // nothing left to split: take the small steps
     yr = solve_yamabe(T, target, u, pin(), yo);
     total_iterations += yr.iterations;
   }
   yr.iterations = total_iterations;
+  return yr;
+}
 
-  ConformalMap out;
-  out.newton_iterations = yr.iterations;
-  out.max_curvature_error = yr.residual;
-  out.converged = yr.converged;
-  out.flips = yr.flips;
-
-  // Layout, then scale the boundary circle to the unit circle and put the boundary on it
-  // exactly (the residual moves it by at most about the curvature tolerance).
+// Layout, then the boundary circle scaled to the unit circle with the boundary put on it
+// exactly (the residual moves it by at most about the curvature tolerance). log_scale gets
+// the log of the length scale from the surface to the disk at each vertex: e^{u_i} from the
+// vertex scaling (l_ij = eta_ij e^{(u_i + u_j) / 2}: an edge with both ends near i scales by
+// e^{u_i}) and 1 / R from fitting the unit circle.
+mesh::UV disk_layout(const IntrinsicTriangulation& T, const YamabeResult& yr, const std::vector<int>& loop,
+                     const std::vector<char>& on_boundary, int nv, Eigen::VectorXd& log_scale) {
   std::vector<Complex> pos = layout(T, yr.u);
   for (int v = 0; v < static_cast<int>(pos.size()); ++v)
     BRENIER_CHECK(std::isfinite(pos[v].real()) && std::isfinite(pos[v].imag()),
@@ -597,33 +617,65 @@ ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
     uv(v, 0) = z.real();
     uv(v, 1) = z.imag();
   }
+  log_scale = (yr.u.head(nv).array() - std::log(R)).matrix();
+  return uv;
+}
 
-  // log of the length scale from the surface to the disk at each vertex: e^{u_i} from the
-  // vertex scaling (l_ij = eta_ij e^{(u_i + u_j) / 2}: an edge with both ends near i scales
-  // by e^{u_i}), 1 / R from fitting the unit circle, then |M'(z)| of each Moebius map below.
-  Eigen::VectorXd log_scale = (yr.u.head(nv).array() - std::log(R)).matrix();
-
-  // Moebius normalization (Thm 2.13).
+// Moebius normalization (Thm 2.13): the centre vertex (or the area centre of mass) at 0 and
+// the boundary marker (or the first boundary vertex) at 1, each map's |M'(z)| added to
+// log_scale; returns the normalization in words.
+std::string normalize_disk(const mesh::TriMesh& m, const ConformalOptions& opt, const std::vector<int>& loop,
+                           int first_boundary, mesh::UV& uv, Eigen::VectorXd& log_scale) {
+  const int nv = m.num_vertices();
+  std::string said;
   if (opt.center_vertex) {
     apply_disk_mobius(uv, Complex(uv(*opt.center_vertex, 0), uv(*opt.center_vertex, 1)), 0.0, &log_scale);
-    out.normalization = "center vertex " + std::to_string(*opt.center_vertex) + " at 0";
+    said = "center vertex " + std::to_string(*opt.center_vertex) + " at 0";
   } else {
     center_disk(uv, m.F, mesh::face_areas(m), 1e-12, 200, &log_scale);
-    out.normalization = "area centre of mass at 0";
+    said = "area centre of mass at 0";
   }
   BRENIER_CHECK(uv.allFinite(), "Moebius normalization produced non-finite positions");
-  int b = opt.boundary_vertex ? *opt.boundary_vertex : first_boundary;
+  const int b = opt.boundary_vertex ? *opt.boundary_vertex : first_boundary;
   apply_disk_mobius(uv, 0.0, -std::atan2(uv(b, 1), uv(b, 0)));
-  out.normalization += ", boundary vertex " + std::to_string(b) + " at 1";
+  said += ", boundary vertex " + std::to_string(b) + " at 1";
   for (int v : loop) {  // keep the boundary exactly on the circle after the Moebius maps
     if (v >= nv) continue;  // a split point, not a mesh vertex
-    double r = std::hypot(uv(v, 0), uv(v, 1));
+    const double r = std::hypot(uv(v, 0), uv(v, 1));
     uv.row(v) /= r;
   }
+  return said;
+}
+
+}  // namespace
+
+// Alg. 1 onto the disk: the discrete Yamabe flow with the boundary's curvature that of a
+// polygon inscribed in a circle, the layout, the Moebius normalization, and the repair of
+// folds that round-off leaves.
+ConformalMap map_to_disk(const mesh::TriMesh& m, const ConformalOptions& opt) {
+  mesh::require_domain(mesh::compute_topology(m), mesh::Domain::kDisk);
+  const int nv = m.num_vertices();
+  IntrinsicTriangulation T(m);
+  const std::vector<char> on_boundary(T.boundary_vertex().begin(), T.boundary_vertex().end());
+  check_disk_markers(opt, nv, on_boundary);
+  FlowBoundary boundary(T, mesh::boundary_loops(m).at(0), nv);
+  const int first_boundary = boundary.loop.front();
+  Eigen::VectorXd u = Eigen::VectorXd::Zero(nv);
+  boundary.refine(T, u, 2 * std::numbers::pi / 3);
+  T.make_delaunay_isometric();
+  const YamabeResult yr = disk_flow(T, boundary, u, opt);
+
+  ConformalMap out;
+  out.newton_iterations = yr.iterations;
+  out.max_curvature_error = yr.residual;
+  out.converged = yr.converged;
+  out.flips = yr.flips;
+  Eigen::VectorXd log_scale;
+  mesh::UV uv = disk_layout(T, yr, boundary.loop, on_boundary, nv, log_scale);
+  out.normalization = normalize_disk(m, opt, boundary.loop, first_boundary, uv, log_scale);
   out.positions = mesh::Vertices::Zero(nv, 3);
   out.positions.leftCols(2) = uv;
-  std::vector<char> fixed(nv);
-  for (int v = 0; v < nv; ++v) fixed[v] = on_boundary[v];
+  std::vector<char> fixed(on_boundary.begin(), on_boundary.begin() + nv);
   // Round-off ears first (no Tutte solve can fix those), then true folds, then any ear the
   // repair left.
   fix_round_off_ears(m, out.positions, fixed);
