@@ -175,17 +175,140 @@ struct KeptFactor {
 
 std::shared_ptr<KeptFactor> make_kept_factor() { return std::make_shared<KeptFactor>(); }
 
+namespace {
+
+// The free vertices' numbering: the unknowns of the Newton system (fixed vertices keep
+// their factor; their curvature has no equation).
+struct FreeVertices {
+  std::vector<int> index;  // by vertex: its unknown, or -1 when fixed
+  int count = 0;
+  explicit FreeVertices(const std::vector<char>& fixed) : index(fixed.size(), -1) {
+    for (size_t i = 0; i < fixed.size(); ++i)
+      if (!fixed[i]) index[i] = count++;
+  }
+  Eigen::VectorXd reduce(const Eigen::VectorXd& x) const {
+    Eigen::VectorXd y(count);
+    for (size_t i = 0; i < index.size(); ++i)
+      if (index[i] >= 0) y[index[i]] = x[i];
+    return y;
+  }
+  Eigen::VectorXd expand(const Eigen::VectorXd& d) const {
+    Eigen::VectorXd x = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(index.size()));
+    for (size_t i = 0; i < index.size(); ++i)
+      if (index[i] >= 0) x[i] = d[index[i]];
+    return x;
+  }
+};
+
+// Newton step (eq. 3.4, Alg. 1 line 8, with the targets' own derivative):
+// (H - M + c w w^T) du = Kbar - K on the free vertices, du = 0 on the fixed ones.
+// The system J d = g with J = H - M + c w w^T (H alone when the targets do not depend on u)
+// is solved by GMRES preconditioned with a Cholesky factor of H, to the accuracy inexact
+// Newton needs (Eisenstat-Walker: |g - J d| <= min(1e-2, max|g|) |g|). A factorization
+// costs far more than a solve, so the factor is kept and reused while GMRES converges with
+// it within a few dozen iterations (the metric changes little between Newton steps);
+// otherwise H is factored afresh at the current metric. M has the rank of the boundary, so
+// a fresh factor of H needs a handful of iterations even where J is indefinite. Should even
+// that fail, J itself is factored (LDL^T) with the rank-one term by Sherman-Morrison.
+Eigen::VectorXd newton_step(const IntrinsicTriangulation& T, const Eigen::VectorXd& u, const FreeVertices& free,
+                            const Target& tg, const Eigen::VectorXd& g, KeptFactor& pre, int iteration) {
+  const Eigen::SparseMatrix<double> J = newton_matrix(T, u, free.index, free.count, tg.M);
+  const Eigen::VectorXd wr = tg.M.empty() ? Eigen::VectorXd::Zero(free.count) : free.reduce(tg.w);
+  const double c = tg.M.empty() ? 0.0 : tg.c;
+  auto apply = [&](const Eigen::VectorXd& x) {
+    Eigen::VectorXd y = J * x;
+    if (c != 0) y += c * wr.dot(x) * wr;
+    return y;
+  };
+  const Eigen::VectorXd diag = J.diagonal();
+  auto precondition = [&](const Eigen::VectorXd& x) {
+    return pre.matches(free.index) ? pre.solve(x) : pre.solve_mapped(x, free.index, diag);
+  };
+  const Eigen::VectorXd gr = free.reduce(g);
+  // Forcing term min(1e-2, max|g|): quadratic convergence, and the last step usually lands
+  // far below the tolerance (the map is then exact to round-off where it can be).
+  const double eta = std::clamp(g.cwiseAbs().maxCoeff(), 1e-12, 1e-2);
+  Eigen::VectorXd d;
+  numeric::KrylovResult kr;
+  for (int attempt = 0; attempt < 2 && !kr.converged; ++attempt) {
+    const bool fresh = !pre.ready || pre.refresh || attempt > 0;
+    if (fresh && !pre.factor(newton_matrix(T, u, free.index, free.count, {}), free.index)) break;
+    d = Eigen::VectorXd::Zero(free.count);
+    // A kept factor gets the budget of iterations one factorization is worth; when it
+    // needs more than half of it, it is refreshed at the next step.
+    kr = numeric::gmres(apply, precondition, gr, d, eta, fresh ? 60 : pre.budget);
+    if (fresh) break;  // a fresh factor did its best
+    pre.refresh = 2 * kr.iterations > pre.budget;
+  }
+  if (kr.converged) return free.expand(d);
+  Eigen::CholmodSimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
+  ldlt.cholmod().print = 0;
+  ldlt.compute(J);
+  Eigen::VectorXd exact;
+  if (ldlt.info() == Eigen::Success) {
+    exact = ldlt.solve(gr);
+    if (c != 0) {
+      Eigen::VectorXd aw = ldlt.solve(wr);
+      exact -= aw * (c * wr.dot(exact) / (1.0 + c * wr.dot(aw)));
+    }
+  }
+  if (exact.size() == free.count && exact.allFinite()) return free.expand(exact);
+  if (!(d.size() == free.count && d.allFinite() && kr.relative_residual < 1))
+    fail(ErrorCode::kNotConverged, "the Yamabe Newton system could not be solved at iteration " + std::to_string(iteration));
+  return free.expand(d);
+}
+
+struct StepTaken {
+  bool accepted = false;
+  bool blocked = false;  // some trial could not be made Delaunay (a boundary triangle)
+  double t = 1;          // the step length tried last
+};
+
+// Backtracking along du from u (Armijo on |g|^2), within a trust region of kMaxStep in any
+// factor per iteration (a factor e^2 in length), so that a wild first step on a tube-like
+// mesh cannot ask for an absurd metric. Each trial flips T from the accepted state; on
+// success u, g and tg are the new point's.
+template <class Residual>
+StepTaken yamabe_line_search(IntrinsicTriangulation& T, const TargetCurvature& target, const Residual& residual,
+                             const Eigen::VectorXd& du, double tolerance, Eigen::VectorXd& u, Eigen::VectorXd& g,
+                             Target& tg) {
+  constexpr double kMaxStep = 4.0;
+  StepTaken s;
+  s.t = std::min(1.0, kMaxStep / std::max(du.cwiseAbs().maxCoeff(), 1e-300));
+  const IntrinsicTriangulation before = T;
+  for (int halvings = 0; halvings < 40; ++halvings, s.t *= 0.5) {
+    if (halvings > 0) T = before;
+    Eigen::VectorXd trial = u + s.t * du;
+    const int fl = T.make_delaunay(trial);
+    if (fl < 0) {
+      s.blocked = s.blocked || fl == -1;
+      continue;
+    }
+    Target tt = target(T, trial);
+    Eigen::VectorXd gt = residual(tt, trial);
+    if (!gt.allFinite()) continue;
+    if (gt.squaredNorm() < (1.0 - 1e-4 * s.t) * g.squaredNorm() || gt.cwiseAbs().maxCoeff() <= tolerance) {
+      u = std::move(trial);
+      g = std::move(gt);
+      tg = std::move(tt);
+      s.accepted = true;
+      return s;
+    }
+  }
+  T = before;
+  return s;
+}
+
+}  // namespace
+
 YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& target,
                           const Eigen::VectorXd& u0, const std::vector<char>& fixed,
                           const YamabeOptions& opt) {
   const int nv = T.num_vertices();
   BRENIER_CHECK(u0.size() == nv, "u0 has " << u0.size() << " entries for " << nv << " vertices");
   BRENIER_CHECK(static_cast<int>(fixed.size()) == nv, "fixed mask has " << fixed.size() << " entries");
-  std::vector<int> index(nv, -1);
-  int nfree = 0;
-  for (int i = 0; i < nv; ++i)
-    if (!fixed[i]) index[i] = nfree++;
-  BRENIER_CHECK(nfree < nv, "at least one vertex must be fixed (the constants are H's null space)");
+  const FreeVertices free(fixed);
+  BRENIER_CHECK(free.count < nv, "at least one vertex must be fixed (the constants are H's null space)");
   // Only free vertices have a curvature equation; fixed ones keep their factor.
   auto residual = [&](const Target& tg, const Eigen::VectorXd& u) {
     Eigen::VectorXd g = tg.K - curvature(T, u);
@@ -204,102 +327,11 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
 
   // The kept factor: the caller's (shared across the solves of one map) or our own.
   std::shared_ptr<KeptFactor> kept = opt.kept_factor ? opt.kept_factor : std::make_shared<KeptFactor>();
-  KeptFactor& pre = *kept;
   std::vector<double> history;
   for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
     if (r.residual <= opt.tolerance) break;
-    // Newton step (eq. 3.4, Alg. 1 line 8, with the targets' own derivative):
-    // (H - M + c w w^T) du = Kbar - K on the free vertices, du = 0 on the fixed ones.
-    auto reduce = [&](const Eigen::VectorXd& x) {
-      Eigen::VectorXd y(nfree);
-      for (int i = 0; i < nv; ++i)
-        if (index[i] >= 0) y[index[i]] = x[i];
-      return y;
-    };
-    // The system J d = g with J = H - M + c w w^T (H alone when the targets do not depend on
-    // u) is solved by GMRES preconditioned with a Cholesky factor of H, to the accuracy
-    // inexact Newton needs (Eisenstat-Walker: |g - J d| <= min(1e-2, max|g|) |g|).
-    // A factorization costs far more than a solve (0.5-0.9 s against 0.03 s at 133K
-    // vertices), so the factor is kept and reused while GMRES converges with it within a
-    // few dozen iterations (the metric changes little between Newton steps); otherwise H is
-    // factored afresh at the current metric. M has the rank of the boundary, so a fresh
-    // factor of H needs a handful of iterations even where J is indefinite. Should even that
-    // fail, J itself is factored (LDL^T) with the rank-one term by Sherman-Morrison.
-    const Eigen::SparseMatrix<double> J = newton_matrix(T, r.u, index, nfree, tg.M);
-    const Eigen::VectorXd wr = tg.M.empty() ? Eigen::VectorXd::Zero(nfree) : reduce(tg.w);
-    const double c = tg.M.empty() ? 0.0 : tg.c;
-    auto apply = [&](const Eigen::VectorXd& x) {
-      Eigen::VectorXd y = J * x;
-      if (c != 0) y += c * wr.dot(x) * wr;
-      return y;
-    };
-    const Eigen::VectorXd diag = J.diagonal();
-    auto precondition = [&](const Eigen::VectorXd& x) {
-      return pre.matches(index) ? pre.solve(x) : pre.solve_mapped(x, index, diag);
-    };
-    const Eigen::VectorXd gr = reduce(g);
-    // Forcing term min(1e-2, max|g|): quadratic convergence, and the last step usually lands
-    // far below the tolerance (the map is then exact to round-off where it can be).
-    const double eta = std::clamp(g.cwiseAbs().maxCoeff(), 1e-12, 1e-2);
-    Eigen::VectorXd d;
-    numeric::KrylovResult kr;
-    for (int attempt = 0; attempt < 2 && !kr.converged; ++attempt) {
-      const bool fresh = !pre.ready || pre.refresh || attempt > 0;
-      if (fresh && !pre.factor(newton_matrix(T, r.u, index, nfree, {}), index)) break;
-      d = Eigen::VectorXd::Zero(nfree);
-      // A kept factor gets the budget of iterations one factorization is worth; when it
-      // needs more than half of it, it is refreshed at the next step.
-      kr = numeric::gmres(apply, precondition, gr, d, eta, fresh ? 60 : pre.budget);
-      if (fresh) break;  // a fresh factor did its best
-      pre.refresh = 2 * kr.iterations > pre.budget;
-    }
-    if (!kr.converged) {
-      Eigen::CholmodSimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
-      ldlt.cholmod().print = 0;
-      ldlt.compute(J);
-      Eigen::VectorXd exact;
-      if (ldlt.info() == Eigen::Success) {
-        exact = ldlt.solve(gr);
-        if (c != 0) {
-          Eigen::VectorXd aw = ldlt.solve(wr);
-          exact -= aw * (c * wr.dot(exact) / (1.0 + c * wr.dot(aw)));
-        }
-      }
-      if (exact.size() == nfree && exact.allFinite())
-        d = std::move(exact);
-      else if (!(d.size() == nfree && d.allFinite() && kr.relative_residual < 1))
-        fail(ErrorCode::kNotConverged, "the Yamabe Newton system could not be solved at iteration " +
-                                           std::to_string(r.iterations));
-    }
-    Eigen::VectorXd du = Eigen::VectorXd::Zero(nv);
-    for (int i = 0; i < nv; ++i)
-      if (index[i] >= 0) du[i] = d[index[i]];
-    // Trust region: at most kMaxStep in any factor per iteration (a factor e^2 in length),
-    // so a wild first step on a tube-like mesh cannot ask for an absurd metric.
-    constexpr double kMaxStep = 4.0;
-    double t = std::min(1.0, kMaxStep / std::max(du.cwiseAbs().maxCoeff(), 1e-300));
-    bool accepted = false, blocked = false;
-    const IntrinsicTriangulation before = T;  // each trial flips from the accepted state
-    for (int halvings = 0; halvings < 40; ++halvings, t *= 0.5) {
-      if (halvings > 0) T = before;
-      Eigen::VectorXd trial = r.u + t * du;
-      int fl = T.make_delaunay(trial);
-      if (fl < 0) {
-        blocked = blocked || fl == -1;
-        continue;
-      }
-      Target tt = target(T, trial);
-      Eigen::VectorXd gt = residual(tt, trial);
-      if (!gt.allFinite()) continue;
-      if (gt.squaredNorm() < (1.0 - 1e-4 * t) * g.squaredNorm() ||
-          gt.cwiseAbs().maxCoeff() <= opt.tolerance) {
-        r.u = std::move(trial);
-        g = std::move(gt);
-        tg = std::move(tt);
-        accepted = true;
-        break;
-      }
-    }
+    const Eigen::VectorXd du = newton_step(T, r.u, free, tg, g, *kept, r.iterations);
+    const StepTaken step = yamabe_line_search(T, target, residual, du, opt.tolerance, r.u, g, tg);
     r.residual = g.cwiseAbs().maxCoeff();
     // Round-off floor: once Newton has stopped halving the residual for a few iterations,
     // more iterations only shuffle round-off (curvatures are sums of many angles of cells
@@ -312,14 +344,13 @@ YamabeResult solve_yamabe(IntrinsicTriangulation& T, const TargetCurvature& targ
     }
     if (opt.progress && !opt.progress(r.iterations + 1, r.residual))
       fail(ErrorCode::kCancelled, "conformal map cancelled");
-    if (!accepted) {  // no progress possible: report as not converged
-      T = before;
-      r.blocked = blocked;
+    if (!step.accepted) {  // no progress possible: report as not converged
+      r.blocked = step.blocked;
       break;
     }
     // A boundary triangle that cannot change shape any further throttles every step; stop
     // and let the caller give it room (see split_boundary_edge) rather than crawl.
-    if (opt.stop_when_blocked && blocked && t < 0.25) {
+    if (opt.stop_when_blocked && step.blocked && step.t < 0.25) {
       r.blocked = true;
       break;
     }
