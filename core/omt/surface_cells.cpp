@@ -105,123 +105,165 @@ double SurfaceDensity::mass() const {
   return m;
 }
 
+namespace {
+
+// The 3-D regular triangulation of the weighted sites: power weight |y_i|^2 + 2 h_i (CGAL's
+// power distance |x - y_i|^2 - w_i is then |x|^2 - 2 (<x, y_i> + h_i)). Its edges are the
+// candidate neighbours of every cell (a superset of the surface's: cutting by more
+// half-spaces than needed is harmless); hidden sites have no cell.
+struct Diagram3 {
+  RT3 rt;
+  std::vector<int> start, nbr;  // CSR neighbour lists
+  std::vector<char> present;
+
+  Diagram3(const Points3& sites, const Eigen::VectorXd& h) {
+    const int n = static_cast<int>(sites.rows());
+    std::vector<std::pair<RT3::Weighted_point, int>> points(n);
+    for (int i = 0; i < n; ++i)
+      points[i] = {RT3::Weighted_point(K::Point_3(sites(i, 0), sites(i, 1), sites(i, 2)),
+                                       sites.row(i).squaredNorm() + 2 * h[i]),
+                   i};
+    rt.insert(points.begin(), points.end());
+    std::vector<std::pair<int, int>> adjacent;
+    for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
+      adjacent.emplace_back(e->first->vertex(e->second)->info(), e->first->vertex(e->third)->info());
+    neighbour_lists(n, adjacent, start, nbr);
+    present.assign(n, 0);
+    for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) present[v->info()] = 1;
+  }
+};
+
+// The cells' pieces of each triangle of the surface: the cells meeting a triangle T tile it
+// (the 3-D diagram cut by T's plane is a power diagram of that plane), so they are connected
+// through their sides in T: a flood fill from the owner of T's centroid, each piece's
+// labelled sides naming the cells to visit.
+class TriangleCells {
+ public:
+  TriangleCells(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& h, const Diagram3& d)
+      : surface_(surface), sites_(sites), h_(h), d_(d), stamp_(sites.rows(), -1) {
+    last_owner_ = static_cast<int>(std::find(d.present.begin(), d.present.end(), 1) - d.present.begin());
+  }
+
+  void run(int f, TriangleResult& out) {
+    const double rho = surface_.density[f];
+    if (!(rho > 0)) return;
+    for (int v = 0; v < 3; ++v) corner_[v] = surface_.vertices.row(surface_.faces(f, v));
+    normal_ = (corner_[1] - corner_[0]).cross(corner_[2] - corner_[0]).normalized();
+    const Vec3 g = (corner_[0] + corner_[1] + corner_[2]) / 3;
+    int owner = greedy_owner(g);
+    for (int attempt = 0; attempt < 2 && out.parts.empty(); ++attempt) {
+      if (attempt == 1) {
+        // CGAL's exact nearest_power_vertex, whose exact fallbacks on cospherical sites took
+        // a third of the time, only where the walk's owner gets no piece (round-off at a tie).
+        const RT3::Vertex_handle v = d_.rt.nearest_power_vertex(K::Point_3(g.x(), g.y(), g.z()));
+        if (v == RT3::Vertex_handle() || v->info() == owner) break;
+        owner = v->info();
+        out.slots.clear();
+      }
+      last_owner_ = owner;
+      flood(owner, 2 * f + attempt, rho, out);
+    }
+  }
+
+ private:
+  // The owner of point g: a greedy walk over the triangulation's edges from the last
+  // triangle's owner (a site whose cell misses g has a neighbour scoring higher there: the
+  // segment from its cell to g leaves it through a neighbour's facet, where the two scores'
+  // affine difference changes sign), in doubles.
+  int greedy_owner(const Vec3& g) const {
+    auto score = [&](int j) { return g.dot(Vec3(sites_.row(j))) + h_[j]; };
+    int owner = last_owner_;
+    for (double best = score(owner);;) {
+      const int from = owner;
+      for (int k = d_.start[from]; k < d_.start[from + 1]; ++k)
+        if (const double sj = score(d_.nbr[k]); sj > best) best = sj, owner = d_.nbr[k];
+      if (owner == from) return owner;
+    }
+  }
+
+  void flood(int owner, int mark, double rho, TriangleResult& out) {
+    queue_.assign(1, owner);
+    stamp_[owner] = mark;
+    for (size_t q = 0; q < queue_.size(); ++q) {
+      const int i = queue_[q];
+      const Vec3 yi = sites_.row(i);
+      piece_.p.assign(corner_, corner_ + 3);
+      piece_.label.assign(3, -1);
+      for (int k = d_.start[i]; k < d_.start[i + 1] && piece_.p.size() >= 3; ++k) {
+        const int j = d_.nbr[k];
+        piece_.cut(yi - Vec3(sites_.row(j)), h_[i] - h_[j], k);
+      }
+      if (piece_.p.size() < 3) continue;
+      out.parts.push_back(integrate(i, yi, rho, mark, out));
+    }
+  }
+
+  // The piece's integrals about site i, and per side on a neighbour's plane its weight in
+  // the Hessian: rho |side| / |P_T (y_i - y_j)|; the neighbours across its sides of
+  // positive length go on the flood's queue.
+  Contribution integrate(int i, const Vec3& yi, double rho, int mark, TriangleResult& out) {
+    const size_t m = piece_.p.size();
+    Contribution c{i, 0, 0, Vec3::Zero(), static_cast<int>(out.slots.size()), 0};
+    const Vec3& p0 = piece_.p[0];
+    for (size_t k = 1; k + 1 < m; ++k) {
+      const Vec3 &p1 = piece_.p[k], &p2 = piece_.p[k + 1];
+      const double area = 0.5 * normal_.dot((p1 - p0).cross(p2 - p0));
+      const Vec3 u = p0 - yi, v = p1 - yi, w = p2 - yi;
+      c.mass += rho * area;
+      c.first += rho * area * (p0 + p1 + p2) / 3;
+      c.second += rho * area * (u.squaredNorm() + v.squaredNorm() + w.squaredNorm() + u.dot(v) + v.dot(w) + w.dot(u)) / 6;
+    }
+    for (size_t k = 0; k < m; ++k) {
+      const int slot = piece_.label[k];
+      if (slot < 0) continue;
+      const double length = (piece_.p[k + 1 == m ? 0 : k + 1] - piece_.p[k]).norm();
+      if (!(length > 0)) continue;
+      const Vec3 d = yi - Vec3(sites_.row(d_.nbr[slot]));
+      const double speed = (d - d.dot(normal_) * normal_).norm();  // |P_T (y_i - y_j)|
+      if (speed > 0) out.slots.emplace_back(slot, rho * length / speed);
+      const int j = d_.nbr[slot];
+      if (stamp_[j] != mark) {
+        stamp_[j] = mark;
+        queue_.push_back(j);
+      }
+    }
+    c.slots_end = static_cast<int>(out.slots.size());
+    return c;
+  }
+
+  const SurfaceDensity& surface_;
+  const Points3& sites_;
+  const Eigen::VectorXd& h_;
+  const Diagram3& d_;
+  Piece piece_;
+  std::vector<int> stamp_, queue_;
+  int last_owner_ = 0;
+  Vec3 corner_[3], normal_;
+};
+
+}  // namespace
+
 SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& h) {
   surface.check();
   const int n = static_cast<int>(sites.rows());
   if (n == 0) invalid("no sites");
   if (h.size() != n) invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(n) + " sites");
   if (!sites.allFinite() || !h.allFinite()) invalid("sites and heights must be finite");
-  // The 3-D regular triangulation: power weight |y_i|^2 + 2 h_i (CGAL's power distance
-  // |x - y_i|^2 - w_i is then |x|^2 - 2 (<x, y_i> + h_i)). Its edges are the candidate
-  // neighbours of every cell (a superset of the surface's: cutting by more half-spaces than
-  // needed is harmless); hidden sites have no cell.
-  std::vector<std::pair<RT3::Weighted_point, int>> points(n);
-  for (int i = 0; i < n; ++i)
-    points[i] = {RT3::Weighted_point(K::Point_3(sites(i, 0), sites(i, 1), sites(i, 2)),
-                                     sites.row(i).squaredNorm() + 2 * h[i]),
-                 i};
-  RT3 rt;
-  rt.insert(points.begin(), points.end());
-  std::vector<std::pair<int, int>> adjacent;
-  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
-    adjacent.emplace_back(e->first->vertex(e->second)->info(), e->first->vertex(e->third)->info());
-  std::vector<int> start, nbr;
-  neighbour_lists(n, adjacent, start, nbr);
-  std::vector<char> present(n, 0);
-  for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) present[v->info()] = 1;
-
-  const int first_present = static_cast<int>(std::find(present.begin(), present.end(), 1) - present.begin());
+  const Diagram3 d(sites, h);
   const int nf = static_cast<int>(surface.faces.rows());
   std::vector<TriangleResult> result(nf);
 #pragma omp parallel
   {
-    Piece piece;
-    std::vector<int> stamp(n, -1), queue;
-    int last_owner = first_present;
+    TriangleCells cells(surface, sites, h, d);
 #pragma omp for schedule(dynamic, 64)
-    for (int f = 0; f < nf; ++f) {
-      const double rho = surface.density[f];
-      if (!(rho > 0)) continue;
-      const Vec3 corner[3] = {surface.vertices.row(surface.faces(f, 0)), surface.vertices.row(surface.faces(f, 1)),
-                              surface.vertices.row(surface.faces(f, 2))};
-      const Vec3 normal = (corner[1] - corner[0]).cross(corner[2] - corner[0]).normalized();
-      const Vec3 g = (corner[0] + corner[1] + corner[2]) / 3;
-      // The cells meeting T tile it (the 3-D diagram cut by T's plane is a power diagram of
-      // that plane), so they are connected through their sides in T: a flood fill from the
-      // owner of T's centroid, each piece's labelled sides naming the cells to visit.
-      // The owner: a greedy walk over the triangulation's edges from the last triangle's
-      // owner (a site whose cell misses g has a neighbour scoring higher there: the segment
-      // from its cell to g leaves it through a neighbour's facet, where the two scores' affine
-      // difference changes sign), in doubles; CGAL's exact nearest_power_vertex, whose exact
-      // fallbacks on cospherical sites took a third of the time, only where the walk's owner
-      // gets no piece (round-off at a tie).
-      TriangleResult& out = result[f];
-      auto score = [&](int j) { return g.dot(Vec3(sites.row(j))) + h[j]; };
-      int owner = last_owner;
-      for (double best = score(owner);;) {
-        const int from = owner;
-        for (int k = start[from]; k < start[from + 1]; ++k)
-          if (const double sj = score(nbr[k]); sj > best) best = sj, owner = nbr[k];
-        if (owner == from) break;
-      }
-      for (int attempt = 0; attempt < 2 && out.parts.empty(); ++attempt) {
-        if (attempt == 1) {
-          const RT3::Vertex_handle v = rt.nearest_power_vertex(K::Point_3(g.x(), g.y(), g.z()));
-          if (v == RT3::Vertex_handle() || v->info() == owner) break;
-          owner = v->info();
-          out.slots.clear();
-        }
-        last_owner = owner;
-        queue.assign(1, owner);
-        stamp[owner] = 2 * f + attempt;
-        for (size_t q = 0; q < queue.size(); ++q) {
-          const int i = queue[q];
-          const Vec3 yi = sites.row(i);
-          piece.p.assign(corner, corner + 3);
-          piece.label.assign(3, -1);
-          for (int k = start[i]; k < start[i + 1] && piece.p.size() >= 3; ++k) {
-            const int j = nbr[k];
-            piece.cut(yi - Vec3(sites.row(j)), h[i] - h[j], k);
-          }
-          const size_t m = piece.p.size();
-          if (m < 3) continue;
-          Contribution c{i, 0, 0, Vec3::Zero(), static_cast<int>(out.slots.size()), 0};
-          const Vec3& p0 = piece.p[0];
-          for (size_t k = 1; k + 1 < m; ++k) {
-            const Vec3 &p1 = piece.p[k], &p2 = piece.p[k + 1];
-            const double area = 0.5 * normal.dot((p1 - p0).cross(p2 - p0));
-            const Vec3 u = p0 - yi, v = p1 - yi, w = p2 - yi;
-            c.mass += rho * area;
-            c.first += rho * area * (p0 + p1 + p2) / 3;
-            c.second +=
-                rho * area * (u.squaredNorm() + v.squaredNorm() + w.squaredNorm() + u.dot(v) + v.dot(w) + w.dot(u)) / 6;
-          }
-          for (size_t k = 0; k < m; ++k) {
-            const int slot = piece.label[k];
-            if (slot < 0) continue;
-            const double length = (piece.p[k + 1 == m ? 0 : k + 1] - piece.p[k]).norm();
-            if (!(length > 0)) continue;
-            const Vec3 d = yi - Vec3(sites.row(nbr[slot]));
-            const double speed = (d - d.dot(normal) * normal).norm();  // |P_T (y_i - y_j)|
-            if (speed > 0) out.slots.emplace_back(slot, rho * length / speed);
-            const int j = nbr[slot];
-            if (stamp[j] != 2 * f + attempt) {
-              stamp[j] = 2 * f + attempt;
-              queue.push_back(j);
-            }
-          }
-          c.slots_end = static_cast<int>(out.slots.size());
-          out.parts.push_back(c);
-        }
-      }
-    }
+    for (int f = 0; f < nf; ++f) cells.run(f, result[f]);
   }
   // Sums in triangle order: the same bits on any number of threads.
   SurfaceCells cells;
   cells.mass = Eigen::VectorXd::Zero(n);
   cells.second_moment = Eigen::VectorXd::Zero(n);
   cells.first = Points3::Zero(n, 3);
-  std::vector<double> slot_weight(nbr.size(), 0.0);
+  std::vector<double> slot_weight(d.nbr.size(), 0.0);
   for (const TriangleResult& r : result)
     for (const Contribution& c : r.parts) {
       cells.mass[c.cell] += c.mass;
@@ -230,9 +272,9 @@ SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& s
       for (int s = c.slots_begin; s < c.slots_end; ++s) slot_weight[r.slots[s].first] += r.slots[s].second;
     }
   for (int i = 0; i < n; ++i) {
-    if (!present[i] || !(cells.mass[i] > 0)) ++cells.empty_cells;
-    for (int k = start[i]; k < start[i + 1]; ++k)
-      if (i < nbr[k] && slot_weight[k] > 0) cells.edges.push_back({i, nbr[k], slot_weight[k]});
+    if (!d.present[i] || !(cells.mass[i] > 0)) ++cells.empty_cells;
+    for (int k = d.start[i]; k < d.start[i + 1]; ++k)
+      if (i < d.nbr[k] && slot_weight[k] > 0) cells.edges.push_back({i, d.nbr[k], slot_weight[k]});
   }
   return cells;
 }
