@@ -3,6 +3,8 @@
 // itself, long cylinder).
 #include <gtest/gtest.h>
 
+#include "expect_error.hpp"
+
 #include <Eigen/Geometry>
 
 #include <cmath>
@@ -183,10 +185,10 @@ TEST(DiskMap, LongCylinderSurvivesHugeConformalFactors) {
 TEST(DiskMap, BadMarkersAreRefused) {
   TriMesh m = mesh::make_disk(3);
   int b = mesh::boundary_loops(m)[0][0];
-  EXPECT_THROW(map_to_disk(m, markers(b, b)), Error);      // centre on the boundary
-  EXPECT_THROW(map_to_disk(m, markers(0, 0)), Error);      // boundary marker inside
-  EXPECT_THROW(map_to_disk(m, markers(0, 10000)), Error);  // out of range
-  EXPECT_THROW(map_to_disk(mesh::make_icosphere(1)), Error);  // not a disk
+  EXPECT_ERROR(map_to_disk(m, markers(b, b)), ErrorCode::kInvalidArgument, "center vertex 19 is on the boundary; it must be interior");      // centre on the boundary
+  EXPECT_ERROR(map_to_disk(m, markers(0, 0)), ErrorCode::kInvalidArgument, "boundary marker 0 is not on the boundary");      // boundary marker inside
+  EXPECT_ERROR(map_to_disk(m, markers(0, 10000)), ErrorCode::kInvalidArgument, "boundary marker 10000 is out of range");  // out of range
+  EXPECT_ERROR(map_to_disk(mesh::make_icosphere(1)), ErrorCode::kInvalidArgument, "the disk domain needs a topological disk but the mesh is a closed genu");  // not a disk
 }
 
 TEST(SphereMap, IcosphereMapsOntoItself) {

@@ -2,6 +2,8 @@
 // search against brute force, cache files, tiles, MDS and k-NN.
 #include <gtest/gtest.h>
 
+#include "expect_error.hpp"
+
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -169,10 +171,10 @@ TEST(Distance, MarkersFixTheTurnAndMustBeGivenForBoth) {
   const distance::PairResult r = distance::wasserstein(a, b);
   EXPECT_EQ(r.rotation, 0.0);
   EXPECT_NE(r.normalization.find("markers"), std::string::npos);
-  EXPECT_THROW(distance::omt_linear(a, c), Error);
+  EXPECT_ERROR(distance::omt_linear(a, c), ErrorCode::kInvalidArgument, "'a' and 'c': give markers for both shapes or for neither");
   ShapeOptions half = small_quadrature();
   half.center_vertex = 0;
-  EXPECT_THROW(distance::prepare_shape(m, "d", half), Error);
+  EXPECT_ERROR(distance::prepare_shape(m, "d", half), ErrorCode::kInvalidArgument, "d: give both markers (an interior and a boundary vertex) or neither");
 }
 
 TEST(Distance, HalfTurnsPermuteTheSphereQuadrature) {
@@ -190,7 +192,7 @@ TEST(Distance, HalfTurnsPermuteTheSphereQuadrature) {
       EXPECT_LT((X.row(to[k]).transpose() - flips[g].cwiseProduct(X.row(k).transpose())).norm(), 1e-12) << g << " " << k;
   }
   q.angles = 9;
-  EXPECT_THROW(distance::sphere_half_turn(1, q), Error);
+  EXPECT_ERROR(distance::sphere_half_turn(1, q), ErrorCode::kInvalidArgument, "sphere_half_turn: axis 0..3 and an even number of angles");
 }
 
 TEST(Distance, OnTheSphereARotatedCopyIsAtDistanceZero) {
@@ -214,7 +216,7 @@ TEST(Distance, OnTheSphereARotatedCopyIsAtDistanceZero) {
   EXPECT_LT(ab.distance, 1e-3);
   EXPECT_NEAR(ab.distance, ba.distance, 1e-9);
   EXPECT_TRUE(ab.normalization.find("chordal") != std::string::npos) << ab.normalization;
-  EXPECT_THROW(distance::prepare_shape(mesh::make_disk(6), "disk", o), Error);
+  EXPECT_ERROR(distance::prepare_shape(mesh::make_disk(6), "disk", o), ErrorCode::kInvalidArgument, "the sphere domain needs a closed genus-0 surface but the mesh is a sur");
 }
 
 TEST(Distance, OnTheSphereTheExactDistanceSeparatesShapes) {
@@ -242,7 +244,7 @@ TEST(Distance, OnTheSphereTheExactDistanceSeparatesShapes) {
 }
 
 TEST(Distance, ClosedSurfacesAreRefusedOnTheDisk) {
-  EXPECT_THROW(distance::prepare_shape(mesh::make_icosphere(2), "ball", small_quadrature()), Error);
+  EXPECT_ERROR(distance::prepare_shape(mesh::make_icosphere(2), "ball", small_quadrature()), ErrorCode::kInvalidArgument, "the disk domain needs a topological disk but the mesh is a closed genu");
 }
 
 TEST(Distance, CacheFilesReadBackExactlyAndRejectDamage) {
@@ -281,7 +283,7 @@ TEST(Matrix, TilesCoverEveryPairOnceInOrder) {
         for (int j = i + 1; j < n; ++j, ++at) EXPECT_EQ(all[at], std::make_pair(i, j));
     }
   EXPECT_EQ(distance::parse_tile("2/5").index, 2);
-  for (const char* bad : {"5/5", "-1/3", "1/0", "a/b", "1/2/3", "1"}) EXPECT_THROW(distance::parse_tile(bad), Error) << bad;
+  for (const char* bad : {"5/5", "-1/3", "1/0", "a/b", "1/2/3", "1"}) EXPECT_ERROR(distance::parse_tile(bad), ErrorCode::kInvalidArgument, "expected I/K with 0 <= I < K") << bad;
 }
 
 TEST(Matrix, TilesFromAnyThreadCountAssembleToTheSameMatrix) {
@@ -304,7 +306,7 @@ TEST(Matrix, TilesFromAnyThreadCountAssembleToTheSameMatrix) {
   EXPECT_TRUE(whole == whole.transpose());
   EXPECT_TRUE((whole.diagonal().array() == 0).all());
   tiles.pop_back();
-  EXPECT_THROW(distance::assemble(tiles), Error);
+  EXPECT_ERROR(distance::assemble(tiles), ErrorCode::kInvalidArgument, "tile 0/3 is missing");
 }
 
 TEST(Analysis, MdsRecoversPlanarPointsUpToARigidMotion) {
@@ -321,7 +323,7 @@ TEST(Analysis, MdsRecoversPlanarPointsUpToARigidMotion) {
     for (int j = 0; j < n; ++j) EXPECT_NEAR((e.coordinates.row(i) - e.coordinates.row(j)).norm(), D(i, j), 1e-9);
   EXPECT_NEAR(e.captured, 1.0, 1e-12);
   EXPECT_LT(e.negative, 1e-12);
-  EXPECT_THROW(distance::classical_mds(D, 0), Error);
+  EXPECT_ERROR(distance::classical_mds(D, 0), ErrorCode::kInvalidArgument, "MDS: dimensions must lie in [1, 9]");
 }
 
 TEST(Analysis, KnnVotesByTheNearestAndCountsFolds) {
@@ -341,8 +343,8 @@ TEST(Analysis, KnnVotesByTheNearestAndCountsFolds) {
   EXPECT_EQ(distance::knn_classify(D, labels, 3, 0).predicted[0], "a");
   const distance::KnnResult f = distance::knn_classify(D, labels, 1, 2);
   EXPECT_EQ(f.total, n);
-  EXPECT_THROW(distance::knn_classify(D, labels, 0, 0), Error);
-  EXPECT_THROW(distance::knn_classify(D, labels, 1, 1), Error);
+  EXPECT_ERROR(distance::knn_classify(D, labels, 0, 0), ErrorCode::kInvalidArgument, "k-NN: k must be at least 1");
+  EXPECT_ERROR(distance::knn_classify(D, labels, 1, 1), ErrorCode::kInvalidArgument, "k-NN: folds must be 0 (leave-one-out) or in [2, n]");
 }
 
 // Sites outside a convex domain whose Voronoi cells miss it: the solver starts from the

@@ -1,6 +1,8 @@
 // Readers and writers: round trips, every format's variants, and corrupt input.
 #include <gtest/gtest.h>
 
+#include "expect_error.hpp"
+
 #include <chrono>
 #include <cstring>
 #include <fstream>
@@ -141,7 +143,7 @@ TEST(Io, DetectsFormatsFromMagicExtensionAndContent) {
   EXPECT_EQ(detect_format("noext", "ply\nformat"), Format::kPly);
   EXPECT_EQ(detect_format("noext", "OFF\n1 2 3"), Format::kOff);
   EXPECT_EQ(detect_format("noext", "solid x\n"), Format::kStl);
-  EXPECT_THROW(detect_format("noext", "\x01\x02"), Error);
+  EXPECT_ERROR(detect_format("noext", "\x01\x02"), ErrorCode::kInvalidArgument, "cannot tell the mesh format of 'noext': use a .obj, .off, .ply or .stl");
 }
 
 TEST(Io, TruncatedAndCorruptFilesNameTheProblem) {

@@ -1,6 +1,8 @@
 // Topology, normalization and hole cutting on meshes with known answers.
 #include <gtest/gtest.h>
 
+#include "expect_error.hpp"
+
 #include <cmath>
 #include <numbers>
 
@@ -100,9 +102,9 @@ TEST(CutHole, OpensASphereIntoADisk) {
 
   CutHole chosen = cut_hole(s, 17);
   EXPECT_EQ(chosen.vertex, 17);
-  EXPECT_THROW(cut_hole(s, 100000), brenier::Error);
-  EXPECT_THROW(cut_hole(make_grid(4)), brenier::Error);
-  EXPECT_THROW(cut_hole(make_torus(8, 6)), brenier::Error);
+  EXPECT_ERROR(cut_hole(s, 100000), brenier::ErrorCode::kInvalidArgument, "hole vertex 100000 is out of range (the mesh has 162 vertices)");
+  EXPECT_ERROR(cut_hole(make_grid(4)), brenier::ErrorCode::kInvalidArgument, "cutting a hole ({cut_hole}) needs a closed genus-0 surface; this mesh ");
+  EXPECT_ERROR(cut_hole(make_torus(8, 6)), brenier::ErrorCode::kInvalidArgument, "cutting a hole ({cut_hole}) needs a closed genus-0 surface; this mesh ");
 }
 
 TEST(CutHole, DefaultVertexIsNearTheMiddle) {
