@@ -95,6 +95,23 @@ grpc::StatusCode code_of(const std::function<void()>& f) {
   return grpc::StatusCode::OK;
 }
 
+// The call fails with `code` and a message that says `fragment`.
+::testing::AssertionResult fails_with(const std::function<void()>& f, grpc::StatusCode code, std::string_view fragment) {
+  try {
+    f();
+  } catch (const client::Error& e) {
+    if (e.code() != code)
+      return ::testing::AssertionFailure() << "status " << static_cast<int>(e.code()) << " (expected "
+                                           << static_cast<int>(code) << "): " << e.what();
+    if (std::string_view(e.what()).find(fragment) == std::string_view::npos)
+      return ::testing::AssertionFailure() << "the message \"" << e.what() << "\" does not say \"" << fragment << "\"";
+    return ::testing::AssertionSuccess();
+  }
+  return ::testing::AssertionFailure() << "succeeded";
+}
+#define EXPECT_STATUS(statement, code, fragment) \
+  EXPECT_TRUE(fails_with([&] { statement; }, grpc::StatusCode::code, fragment))
+
 bool finished(pb::JobState s) { return s == pb::SUCCEEDED || s == pb::FAILED || s == pb::CANCELLED; }
 
 // Waits until the job is RUNNING in `stage` (or finished).
@@ -221,10 +238,10 @@ TEST(Service, DistanceAndMatrixRoundTripsGiveTheEnginesAnswer) {
   EXPECT_EQ(nlohmann::json::parse(c.fetch(jo.id()))["max_relative_cost_gap"].get<double>(), 0.0);
   pb::SubmitJobRequest too_loose = r;
   too_loose.mutable_distance()->mutable_wasserstein()->set_cost_tolerance(2);
-  EXPECT_EQ(code_of([&] { c.submit(too_loose); }), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_STATUS(c.submit(too_loose);, INVALID_ARGUMENT, "cost_tolerance must be at most 1");
   pb::SubmitJobRequest half = r;  // markers for one mesh only
   half.mutable_distance()->mutable_markers_a()->set_center(0);
-  EXPECT_EQ(code_of([&] { c.submit(half); }), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_STATUS(c.submit(half);, INVALID_ARGUMENT, "give markers for both meshes or neither");
 
   // The sphere (closed genus-0 meshes; squared chordal cost), the engine's answer; a disk
   // is refused there.
@@ -246,10 +263,10 @@ TEST(Service, DistanceAndMatrixRoundTripsGiveTheEnginesAnswer) {
   EXPECT_NE(nlohmann::json::parse(c.fetch(js.id()))["normalization"].get<std::string>().find("chordal"), std::string::npos);
   pb::SubmitJobRequest disk_on_sphere = rs;
   disk_on_sphere.mutable_distance()->set_b(a);
-  EXPECT_EQ(code_of([&] { c.submit(disk_on_sphere); }), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_STATUS(c.submit(disk_on_sphere);, INVALID_ARGUMENT, "is a disk mesh; the sphere domain needs a closed genus-0 surface");
   pb::SubmitJobRequest turned = rs;  // turns are a disk's; the sphere compares its frame's half-turns
   turned.mutable_distance()->mutable_wasserstein()->set_refine_rotation(true);
-  EXPECT_EQ(code_of([&] { c.submit(turned); }), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_STATUS(c.submit(turned);, INVALID_ARGUMENT, "refine_rotation applies to the disk domain");
 
   // A matrix (both methods): symmetric, zero diagonal, names, and the engine's values.
   for (pb::DistanceMethod method : {pb::OMT_LINEAR, pb::WASSERSTEIN}) {
@@ -301,7 +318,7 @@ TEST(Service, ResubmittingWithTheSameRequestIdReturnsTheSameJob) {
   // The same key for another spec is refused.
   pb::SubmitJobRequest other = map_spec(id, pb::DISK, pb::AREA_PRESERVING);
   other.set_request_id("my-request-1");
-  EXPECT_EQ(code_of([&] { c.submit(other); }), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_STATUS(c.submit(other);, INVALID_ARGUMENT, "was used for another job spec");
 }
 
 TEST(Service, ThirtyTwoConcurrentClients) {
@@ -355,7 +372,7 @@ TEST(Service, CancellingARunningAreaPreservingJobEndsItWithinOneSecond) {
   std::printf("cancel to CANCELLED event: %.3f s\n", seconds);
   const pb::Job done = c.get(j.id());
   EXPECT_EQ(done.state(), pb::CANCELLED);
-  EXPECT_EQ(code_of([&] { c.fetch(j.id()); }), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_STATUS(c.fetch(j.id());, FAILED_PRECONDITION, "is CANCELLED: cancelled; results come once it has succeeded");
   // Cancelling a finished job changes nothing.
   EXPECT_EQ(c.cancel(j.id()).state(), pb::CANCELLED);
 }
@@ -369,27 +386,25 @@ TEST(Service, FullQueueUnfinishedResultsAndBadSpecsGetTheirStatus) {
   const pb::Job running = c.submit(map_spec(big, pb::DISK, pb::AREA_PRESERVING));
   wait_for_stage(c, running.id(), "conformal");
   const pb::Job queued = c.submit(map_spec(small, pb::DISK, pb::CONFORMAL));
-  EXPECT_EQ(code_of([&] { c.submit(map_spec(small, pb::DISK, pb::CONFORMAL)); }),
-            grpc::StatusCode::RESOURCE_EXHAUSTED);
-  EXPECT_EQ(code_of([&] { c.fetch(running.id()); }), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_STATUS(c.submit(map_spec(small, pb::DISK, pb::CONFORMAL));, RESOURCE_EXHAUSTED, "the job queue is full (1 jobs waiting)");
+  EXPECT_STATUS(c.fetch(running.id());, FAILED_PRECONDITION, "is RUNNING; results come once it has succeeded");
   // A queued job cancelled never runs, and frees its place in the queue at once.
   EXPECT_EQ(c.cancel(queued.id()).state(), pb::CANCELLED);
   const pb::Job refill = c.submit(map_spec(small, pb::DISK, pb::CONFORMAL));
   EXPECT_EQ(c.cancel(refill.id()).state(), pb::CANCELLED);
   c.cancel(running.id());
   // Specs that cannot run.
-  EXPECT_EQ(code_of([&] { c.submit(map_spec(std::string(64, 'a'), pb::DISK, pb::CONFORMAL)); }),
-            grpc::StatusCode::NOT_FOUND);
-  EXPECT_EQ(code_of([&] { c.submit(map_spec(ico, pb::DISK, pb::CONFORMAL)); }), grpc::StatusCode::INVALID_ARGUMENT);
-  EXPECT_EQ(code_of([&] { c.submit(map_spec(small, pb::SPHERE, pb::CONFORMAL)); }), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_STATUS(c.submit(map_spec(std::string(64, 'a'), pb::DISK, pb::CONFORMAL));, NOT_FOUND, "no mesh aaaaaaaa");
+  EXPECT_STATUS(c.submit(map_spec(ico, pb::DISK, pb::CONFORMAL));, INVALID_ARGUMENT, "is a sphere mesh; the disk domain needs a topological disk (set cut_hole to open it)");
+  EXPECT_STATUS(c.submit(map_spec(small, pb::SPHERE, pb::CONFORMAL));, INVALID_ARGUMENT, "is a disk mesh; the sphere domain needs a closed genus-0 surface");
   pb::SubmitJobRequest t = map_spec(small, pb::DISK, pb::CONFORMAL);
   t.mutable_map()->set_t(0.5);
-  EXPECT_EQ(code_of([&] { c.submit(t); }), grpc::StatusCode::INVALID_ARGUMENT);
-  EXPECT_EQ(code_of([&] { c.submit(pb::SubmitJobRequest()); }), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_STATUS(c.submit(t);, INVALID_ARGUMENT, "t and weights apply to the area-preserving method");
+  EXPECT_STATUS(c.submit(pb::SubmitJobRequest());, INVALID_ARGUMENT, "the job has no spec (map, distance or matrix)");
   pb::SubmitJobRequest one;
   one.mutable_matrix()->add_meshes(small);
-  EXPECT_EQ(code_of([&] { c.submit(one); }), grpc::StatusCode::INVALID_ARGUMENT);
-  EXPECT_EQ(code_of([&] { c.get("nope"); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_STATUS(c.submit(one);, INVALID_ARGUMENT, "a distance matrix needs at least two meshes");
+  EXPECT_STATUS(c.get("nope");, NOT_FOUND, "no job nope");
   // Weights of the wrong length fail the job with the reason, not the server.
   const std::string small2 = small;
   c.watch(running.id());
@@ -459,7 +474,7 @@ TEST(Service, BadUploadsGetTheRightStatusAndTheServerStaysHealthy) {
   EXPECT_EQ(c6, grpc::StatusCode::INVALID_ARGUMENT) << m6;
   // Over the vertex limit (a valid mesh of 1,141 vertices).
   const std::string many = off_bytes(mesh::make_disk(19));
-  EXPECT_EQ(code_of([&] { c.upload_bytes(many, "many.off"); }), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_STATUS(c.upload_bytes(many, "many.off");, RESOURCE_EXHAUSTED, "declares 1141 vertices, over the limit of 1000");
   // An invalid mesh names its problem (a torus is valid; a bow-tie of two triangles is not).
   const std::string bowtie = "OFF\n5 2 0\n0 0 0\n1 0 0\n0 1 0\n-1 0 0\n0 -1 0\n3 0 1 2\n3 0 3 4\n";
   try {
@@ -567,7 +582,7 @@ TEST(Service, KillNineDuringAnUploadLeavesItAbsent) {
   w->Finish();
   server.start({});
   Client c2 = server.client();
-  EXPECT_EQ(code_of([&] { c2.get_mesh(client::sha256_hex(bytes)); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_STATUS(c2.get_mesh(client::sha256_hex(bytes));, NOT_FOUND, "no mesh ");
   EXPECT_TRUE(c2.list_meshes().empty());
   EXPECT_TRUE(std::filesystem::is_empty(data + "/tmp"));  // the partial file was cleared at the start
   EXPECT_EQ(c2.upload_bytes(bytes, "big.off").vertices(), clean_of(bytes).mesh.num_vertices());
@@ -663,8 +678,8 @@ TEST(Service, ShuttingDownRefusesNewWorkAndReportsNotServing) {
     health = server.health();
   }
   EXPECT_EQ(health, 2);  // NOT_SERVING while it drains
-  EXPECT_EQ(code_of([&] { c.submit(map_spec(big, pb::DISK, pb::CONFORMAL)); }), grpc::StatusCode::UNAVAILABLE);
-  EXPECT_EQ(code_of([&] { c.upload_bytes(hemisphere(), "late.off"); }), grpc::StatusCode::UNAVAILABLE);
+  EXPECT_STATUS(c.submit(map_spec(big, pb::DISK, pb::CONFORMAL));, UNAVAILABLE, "the server is shutting down");
+  EXPECT_STATUS(c.upload_bytes(hemisphere(), "late.off");, UNAVAILABLE, "the server is shutting down");
   // Reads still work, and the running job is given its grace period to finish.
   EXPECT_EQ(c.get(id).state(), pb::RUNNING);
   EXPECT_EQ(server.stop(), 0);
@@ -696,13 +711,13 @@ TEST(Service, TenantsSeeOnlyTheirOwnMeshesAndJobs) {
   const std::string m = alice.upload_bytes(hemisphere(), "hemi").id();
   const pb::Job j = alice.watch(alice.submit(map_spec(m, pb::DISK, pb::CONFORMAL)).id());
   ASSERT_EQ(j.state(), pb::SUCCEEDED);
-  EXPECT_EQ(code_of([&] { bob.get_mesh(m); }), grpc::StatusCode::NOT_FOUND);
-  EXPECT_EQ(code_of([&] { bob.get(j.id()); }), grpc::StatusCode::NOT_FOUND);
-  EXPECT_EQ(code_of([&] { bob.cancel(j.id()); }), grpc::StatusCode::NOT_FOUND);
-  EXPECT_EQ(code_of([&] { bob.fetch(j.id()); }), grpc::StatusCode::NOT_FOUND);
-  EXPECT_EQ(code_of([&] { bob.watch(j.id()); }), grpc::StatusCode::NOT_FOUND);
-  EXPECT_EQ(code_of([&] { bob.delete_mesh(m); }), grpc::StatusCode::NOT_FOUND);
-  EXPECT_EQ(code_of([&] { bob.submit(map_spec(m, pb::DISK, pb::CONFORMAL)); }), grpc::StatusCode::NOT_FOUND);
+  EXPECT_STATUS(bob.get_mesh(m);, NOT_FOUND, "no mesh ");
+  EXPECT_STATUS(bob.get(j.id());, NOT_FOUND, "no job ");
+  EXPECT_STATUS(bob.cancel(j.id());, NOT_FOUND, "no job ");
+  EXPECT_STATUS(bob.fetch(j.id());, NOT_FOUND, "no job ");
+  EXPECT_STATUS(bob.watch(j.id());, NOT_FOUND, "no job ");
+  EXPECT_STATUS(bob.delete_mesh(m);, NOT_FOUND, "no mesh ");
+  EXPECT_STATUS(bob.submit(map_spec(m, pb::DISK, pb::CONFORMAL));, NOT_FOUND, "no mesh ");
   EXPECT_TRUE(bob.list_meshes().empty());
   EXPECT_TRUE(bob.list_jobs().empty());
   // Bob uploading the same bytes gets his own record; deleting it leaves Alice's.
@@ -710,8 +725,8 @@ TEST(Service, TenantsSeeOnlyTheirOwnMeshesAndJobs) {
   bob.delete_mesh(m);
   EXPECT_EQ(alice.get_mesh(m).name(), "hemi");
   EXPECT_FALSE(alice.fetch(j.id()).empty());
-  EXPECT_EQ(code_of([&] { server.client().list_meshes(); }), grpc::StatusCode::UNAUTHENTICATED);
-  EXPECT_EQ(code_of([&] { server.client("wrong-token-0123456789").list_jobs(); }), grpc::StatusCode::UNAUTHENTICATED);
+  EXPECT_STATUS(server.client().list_meshes();, UNAUTHENTICATED, "this server needs 'authorization: Bearer TOKEN'");
+  EXPECT_STATUS(server.client("wrong-token-0123456789").list_jobs();, UNAUTHENTICATED, "unknown token");
   EXPECT_EQ(server.health(), 1);  // health needs no token
 }
 
@@ -785,7 +800,7 @@ TEST(Service, ATenantsOpenWatchesAndUploadsAreCapped) {
   head.mutable_header()->set_sha256(client::sha256_hex(hemisphere()));
   ASSERT_TRUE(up->Write(head));
   std::this_thread::sleep_for(std::chrono::milliseconds(300));  // the server has read the header
-  EXPECT_EQ(code_of([&] { c.upload_bytes(hemisphere(), "h.off"); }), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_STATUS(c.upload_bytes(hemisphere(), "h.off");, RESOURCE_EXHAUSTED, "upload streams open, the most this server allows per tenant");
   pb::UploadMeshRequest body;
   body.set_chunk(hemisphere());
   ASSERT_TRUE(up->Write(body));
