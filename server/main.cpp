@@ -130,8 +130,8 @@ int serve(const Flags& f) {
   builder.AddListeningPort(f.listen, creds, &port);
   builder.SetMaxReceiveMessageSize(16 << 20);  // chunks are 64 KiB; a map's weights may be larger
   // Handler threads stay around between bursts (gRPC's default keeps 2 and re-creates the
-  // rest per burst): 32 clients back to back, 1,600 submissions in 0.47 s instead of
-  // 0.55-0.72 s, p99 ~30 ms instead of ~45 ms (bench/RESULTS.md).
+  // rest per burst), which shortens bursts of submissions and their latency's tail
+  // (bench/RESULTS.md).
   builder.SetSyncServerOption(grpc::ServerBuilder::MIN_POLLERS, 2);
   builder.SetSyncServerOption(grpc::ServerBuilder::MAX_POLLERS, 64);
   builder.RegisterService(&service);

@@ -142,7 +142,7 @@ void Scheduler::work() {
   single_threaded_blas();
   // Workers run at the normal priority: at nice 10 (tried, for the submit latency's tail)
   // they got a tenth of a core beside any other busy process, and cancellation, checked per
-  // Newton iteration, took 8-10 s instead of 0.1-0.2 s (bench/RESULTS.md).
+  // Newton iteration, took fifty times longer (bench/RESULTS.md).
   std::unique_lock<std::mutex> lock(mutex_);
   for (;;) {
     if (take_task(lock)) continue;

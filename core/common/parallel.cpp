@@ -51,8 +51,7 @@ void parallel_for(int n, int workers, const std::function<void(int)>& task) {
     }
   };
   // The calling thread is one of the workers: one thread fewer to start, and its malloc
-  // arena already holds pages (a fresh thread's arena faults in every page it touches: on
-  // a 5K Wasserstein pair, page faults were 7 % of the time).
+  // arena already holds pages (a fresh thread's arena faults in every page it touches).
   std::vector<std::thread> threads;
   const int count = std::min(workers, n);
   for (int t = 1; t < count; ++t)

@@ -160,7 +160,7 @@ struct TrianglePiece {
 // Clipping the triangle (three corners, cut by the sides of P with a corner outside: 2.8
 // on average, the triangles being about as large as the cells) rather than P by the
 // triangle (a copy of P's six or so corners, cut by up to three sides), with each mesh
-// vertex's sides found once per cell, took a 5K diagram's cells from 12 to 8.3 ms.
+// vertex's sides found once per cell, costs a third less (bench/RESULTS.md).
 void integrate_density(const LabelledPolygon& P, const DensityMesh& dm, const Vec2& c, int cell_id,
                        std::vector<int>& stamp, std::vector<int>& queue, int& start, TrianglePiece& T,
                        CellResult& out);

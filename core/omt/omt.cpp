@@ -40,7 +40,7 @@ Eigen::SparseMatrix<double> hessian(const PowerCells& cells, const Points& sites
   for (int c = 0; c < m; ++c) start[c + 1] += start[c];
   // Straight into compressed columns, rows ascending: the edges come ordered by (i, j)
   // with i < j, so column i gets rows i' < i (from earlier edges), then i, then j > i.
-  // (Assembling 3M edges through triplets cost ~1 s per Newton iteration at 1M sites.)
+  // (Assembling millions of edges through triplets cost more than the rest of an iteration.)
   Eigen::SparseMatrix<double> H(m, m);
   H.resizeNonZeros(start[m]);
   std::vector<int> fill(start.begin(), start.end() - 1);

@@ -217,7 +217,7 @@ class CellStart {
   // outside the outline is outside the side its angle about the centre falls in, so the
   // sides whose angular spans meet P's suffice (one more at either end against round-off);
   // P spanning 3 radians or more (about the centre) is cut by every side. (Trying every
-  // side of a 5K image's ~240-gon on each cell near it cost a 5K pair 3-5 %.)
+  // side of a 5K image's ~240-gon on each cell near it made a pair measurably slower.)
   std::pair<int, int> sides_near(const LabelledPolygon& P) const {
     bool inside = true;
     for (const Vec2& x : P.p) inside = inside && (x - centre_).squaredNorm() <= inscribed_ * inscribed_;

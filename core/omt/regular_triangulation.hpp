@@ -25,7 +25,7 @@ using WP = K::Weighted_point_2;
 // plain doubles when the result clears a forward error bound, and by CGAL's exact
 // predicate (interval filter, then exact arithmetic) otherwise: a semi-static filter.
 // CGAL's Epick has static filters for the Delaunay in-circle test but none for this one,
-// and its interval filter (rounding-mode switches) was 15-17 % of a whole OT solve.
+// and its interval filter (rounding-mode switches) was a sixth of a whole OT solve.
 // The bound: each entry is off by at most 5 units of round-off u relative to the sum of
 // the absolute values it is made of (Z = dx^2 + dy^2 + |w| + |w_t| for the last column),
 // each of the six products of the expansion adds 3 u, and their sum 5 u; 64 u against the
@@ -85,8 +85,8 @@ bool triangulate(const Points& sites, const Eigen::VectorXd& psi, const std::vec
 // no site is hidden. Sites do not move, so the convex hull and the edges on it stay. When
 // edges remain that cannot be flipped -- a site that has to be hidden, or a flip sequence
 // that is stuck -- every flip is undone and the weights restored, and the caller builds
-// the triangulation anew. A Newton step moves few edges: at 10K sites a new triangulation
-// took ~7 ms, mostly CGAL's insertions; the flips take a fraction of it.
+// the triangulation anew. A Newton step moves few edges, so the flips cost a fraction of
+// a new triangulation (mostly CGAL's insertions; figures in bench/RESULTS.md).
 enum class Reweighted { kRegular, kHidden, kStuck };
 Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& vertex, const Points& sites,
                              const Eigen::VectorXd& old_psi, const Eigen::VectorXd& psi, bool stop_if_hidden);
