@@ -2,6 +2,7 @@
 // that need no mesh (requests.hpp).
 #include "jobs/requests.hpp"
 
+#include <array>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -10,15 +11,29 @@
 #include "common/error.hpp"
 
 namespace brenier {
+namespace {
+
+// Each enum's names, in the enum's order: one table for both directions.
+template <class E, size_t N>
+struct Names {
+  std::array<const char*, N> name;
+  const char* of(E e) const { return name[static_cast<size_t>(e)]; }
+  std::optional<E> find(std::string_view s) const {
+    for (size_t k = 0; k < N; ++k)
+      if (s == name[k]) return static_cast<E>(k);
+    return std::nullopt;
+  }
+};
+constexpr Names<distance::Method, 2> kMethods{{"wasserstein", "omt-linear"}};
+constexpr Names<mesh::Domain, 2> kDomains{{"disk", "sphere"}};
+constexpr Names<jobs::MapMethod, 2> kMapMethods{{"conformal", "area-preserving"}};
+
+}  // namespace
+
 namespace distance {
 
-const char* method_name(Method m) { return m == Method::kWasserstein ? "wasserstein" : "omt-linear"; }
-
-std::optional<Method> find_method(std::string_view name) {
-  if (name == "wasserstein") return Method::kWasserstein;
-  if (name == "omt-linear") return Method::kOmtLinear;
-  return std::nullopt;
-}
+const char* method_name(Method m) { return kMethods.of(m); }
+std::optional<Method> find_method(std::string_view name) { return kMethods.find(name); }
 
 Method parse_method(const std::string& name) {
   if (auto m = find_method(name)) return *m;
@@ -26,6 +41,13 @@ Method parse_method(const std::string& name) {
 }
 
 }  // namespace distance
+
+namespace mesh {
+
+const char* domain_name(Domain d) { return kDomains.of(d); }
+std::optional<Domain> find_domain(std::string_view name) { return kDomains.find(name); }
+
+}  // namespace mesh
 
 namespace jobs {
 namespace {
@@ -51,21 +73,8 @@ std::optional<int> whole_int(const std::string& text) {
 
 }  // namespace
 
-const char* domain_name(Domain d) { return d == Domain::kSphere ? "sphere" : "disk"; }
-
-std::optional<Domain> find_domain(std::string_view name) {
-  if (name == "disk") return Domain::kDisk;
-  if (name == "sphere") return Domain::kSphere;
-  return std::nullopt;
-}
-
-const char* map_method_name(MapMethod m) { return m == MapMethod::kAreaPreserving ? "area-preserving" : "conformal"; }
-
-std::optional<MapMethod> find_map_method(std::string_view name) {
-  if (name == "conformal") return MapMethod::kConformal;
-  if (name == "area-preserving") return MapMethod::kAreaPreserving;
-  return std::nullopt;
-}
+const char* map_method_name(MapMethod m) { return kMapMethods.of(m); }
+std::optional<MapMethod> find_map_method(std::string_view name) { return kMapMethods.find(name); }
 
 void MapRequest::validate() const {
   const bool sphere = domain == Domain::kSphere;

@@ -14,13 +14,14 @@
 #include <vector>
 
 #include "distance/method.hpp"
+#include "mesh/domain.hpp"
 
 namespace brenier::jobs {
 
 /// The parameter domain of a map or of the shapes of a distance.
-enum class Domain { kDisk, kSphere };
-const char* domain_name(Domain d);
-std::optional<Domain> find_domain(std::string_view name);
+using mesh::Domain;
+using mesh::domain_name;
+using mesh::find_domain;
 
 /// Conformal (Alg. 1, sec. 3.2.5) or area-preserving (Alg. 3, the OMT map of the conformal
 /// image's area measure).

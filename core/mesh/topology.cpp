@@ -18,8 +18,6 @@ const char* class_name(MeshClass c) {
   return "other";
 }
 
-const char* domain_name(Domain d) { return d == Domain::kDisk ? "disk" : "sphere"; }
-
 namespace {
 
 std::vector<std::vector<int>> loops_from(const std::vector<EdgeUse>& h);

@@ -5,15 +5,14 @@
 #include <string>
 #include <vector>
 
+#include "mesh/domain.hpp"
 #include "mesh/mesh.hpp"
 
 namespace brenier::mesh {
 
 enum class MeshClass { kDisk, kSphere, kOther };
-enum class Domain { kDisk, kSphere };
 
 const char* class_name(MeshClass c);  // "disk", "sphere", "other"
-const char* domain_name(Domain d);    // "disk", "sphere"
 
 struct Topology {
   int vertices = 0;

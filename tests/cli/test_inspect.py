@@ -46,6 +46,11 @@ rc, out, err = run("inspect")
 check(rc == 2 and len(err.splitlines()) == 1, f"missing argument: exit 2 with one line, got {rc} {err!r}")
 rc, out, err = run("inspect", "--domain", "sphere", os.path.join(data, "lion-head.off"))
 check(rc == 2 and "closed genus-0" in err, f"lion-head onto the sphere must be refused: {rc} {err!r}")
+rc, out, err = run("inspect", "--domain", "disk", os.path.join(data, "armadillo.off"))
+check(rc == 2 and "open it with --cut-hole" in out and "{" not in out and "--cut-hole" in err,
+      f"a closed mesh onto the disk names the flag, in the report and on stderr: {rc} {out!r} {err!r}")
+rc, out, err = run("inspect", "--domain", "torus", os.path.join(data, "armadillo.off"))
+check(rc == 2 and "'torus' is not one of disk, sphere" in err, f"an unknown domain is named: {rc} {err!r}")
 rc, out, err = run("inspect", "--cut-hole", "--domain", "disk", "--json", os.path.join(data, "armadillo.off"))
 check(rc == 0 and json.loads(out)["class"] == "disk", f"armadillo with --cut-hole is a disk: {rc} {err!r}")
 

@@ -4,6 +4,7 @@
 #include <memory>
 
 #include "commands.hpp"
+#include "request_flags.hpp"
 #include "common/error.hpp"
 #include "mesh/geometry.hpp"
 
@@ -13,7 +14,8 @@ namespace {
 struct InspectOptions {
   MeshInputOptions input;
   bool json = false;
-  std::string domain;
+  std::optional<mesh::Domain> domain;  // --domain given: check that the mesh fits it
+  mesh::Domain domain_value = mesh::Domain::kDisk;
   bool cut = false;
   int hole_vertex = -1;
 };
@@ -36,9 +38,8 @@ int run_inspect(const InspectOptions& o) {
       cm.mesh = std::move(cut.mesh);
     }
     topo = mesh::compute_topology(cm.mesh);
-    if (!o.domain.empty()) {
-      domain_error = mesh::domain_mismatch(
-          *topo, o.domain == "disk" ? mesh::Domain::kDisk : mesh::Domain::kSphere);
+    if (o.domain) {
+      domain_error = mesh::domain_mismatch(*topo, *o.domain);
     }
   } else if (cm.mesh.F.rows() > 0 && cm.mesh.V.rows() > 0 &&
              !cm.report.problems.empty() && cm.mesh.V.allFinite()) {
@@ -52,7 +53,7 @@ int run_inspect(const InspectOptions& o) {
     if (topo) j.update(topology_json(*topo));
     if (topo) j["area"] = area;
     if (cut_vertex >= 0) j["cut_hole_vertex"] = cut_vertex;
-    if (!o.domain.empty()) j["fits_domain"] = domain_error.empty();
+    if (o.domain) j["fits_domain"] = domain_error.empty();
     j["valid"] = valid;
     j["problems"] = problems_json(cm.report);
     std::cout << j.dump(2) << std::endl;
@@ -77,7 +78,7 @@ int run_inspect(const InspectOptions& o) {
     for (const auto& p : cm.report.problems)
       std::cout << (p.severity == mesh::Problem::Severity::kError ? "error:   " : "warning: ")
                 << p.code << ": " << name_options(p.message, OptionStyle::kFlag) << "\n";
-    if (!domain_error.empty()) std::cout << "error:   domain: " << domain_error << "\n";
+    if (!domain_error.empty()) std::cout << "error:   domain: " << name_options(domain_error, OptionStyle::kFlag) << "\n";
     std::cout << "valid:          " << (valid ? "yes" : "no") << std::endl;
   }
   if (err) invalid(o.input.path + ": " + err->message);
@@ -94,14 +95,12 @@ void add_inspect(CLI::App& app, Action& action) {
                  "genus, class (disk/sphere/other), area and every problem found");
   o->input.add_to(cmd);
   cmd->add_flag("--json", o->json, "print one JSON object");
-  cmd->add_option("--domain", o->domain, "also check that the mesh fits this domain")
-      ->check(CLI::IsMember({"disk", "sphere"}));
-  cmd->add_flag("--cut-hole", o->cut,
-                "open a closed genus-0 mesh into a disk by removing one vertex's star");
-  cmd->add_option("--hole-vertex", o->hole_vertex,
-                  "vertex whose star --cut-hole removes (default: a vertex near the surface's "
-                  "centre along the edges, so that no protrusion is far from the hole)");
-  cmd->callback([o, &action] { action = [o] { return run_inspect(*o); }; });
+  CLI::Option* domain = options::add_domain(cmd, o->domain_value, "also check that the mesh fits this domain");
+  options::add_cut_hole(cmd, o->cut, o->hole_vertex, "open a closed genus-0 mesh into a disk by removing one vertex's star");
+  cmd->callback([o, domain, &action] {
+    if (domain->count() > 0) o->domain = o->domain_value;
+    action = [o] { return run_inspect(*o); };
+  });
 }
 
 }  // namespace brenier::tools

@@ -23,19 +23,29 @@ CLI::Validator choices(std::map<std::string, E> names) {
 
 }  // namespace
 
+CLI::Option* add_domain(CLI::App* cmd, jobs::Domain& domain, const std::string& help) {
+  return cmd->add_option("--domain", domain, help)
+      ->transform(choices<jobs::Domain>({{"disk", jobs::Domain::kDisk}, {"sphere", jobs::Domain::kSphere}}));
+}
+
+void add_cut_hole(CLI::App* cmd, bool& cut_hole, int& hole_vertex, const std::string& help) {
+  cmd->add_flag("--cut-hole", cut_hole, help);
+  cmd->add_option("--hole-vertex", hole_vertex,
+                  "with --cut-hole: the vertex whose star is removed (default: a vertex near the surface's "
+                  "centre, splitting a near-diametral pair of vertices)")
+      ->check(CLI::NonNegativeNumber);
+}
+
 void MapFlags::add_to(CLI::App* cmd) {
   jobs::MapRequest& r = request;
-  cmd->add_option("--domain", r.domain, "disk or sphere")
-      ->transform(choices<jobs::Domain>({{"disk", jobs::Domain::kDisk}, {"sphere", jobs::Domain::kSphere}}));
+  add_domain(cmd, r.domain, "disk or sphere");
   cmd->add_option("--method", r.method, "conformal (Alg. 1) or area-preserving (Alg. 3)")
       ->transform(choices<jobs::MapMethod>(
           {{"conformal", jobs::MapMethod::kConformal}, {"area-preserving", jobs::MapMethod::kAreaPreserving}}));
   cmd->add_option("--markers", r.markers,
                   "input vertex numbers: disk center,boundary (sent to 0 and 1); sphere v0,v1,vinf (sent to 0, 1, infinity)")
       ->delimiter(',');
-  cmd->add_flag("--cut-hole", r.cut_hole, "disk: open a closed genus-0 mesh by removing one vertex's star");
-  cmd->add_option("--hole-vertex", r.hole_vertex, "with --cut-hole: the vertex whose star is removed")
-      ->check(CLI::NonNegativeNumber);
+  add_cut_hole(cmd, r.cut_hole, r.hole_vertex, "disk: open a closed genus-0 mesh by removing one vertex's star");
   cmd->add_option("--tolerance", r.tolerance,
                   "conformal: max |K - Kbar| (radians, default 1e-7); area-preserving: max relative "
                   "cell-mass error (default 1e-8)")
@@ -61,10 +71,9 @@ void ShapeFlags::add_to(CLI::App* cmd) {
   cmd->add_option("--method", r.method, "wasserstein (exact, Alg. 5) or omt-linear (Def. 2.24 as an embedding)")
       ->transform(choices<distance::Method>(
           {{"wasserstein", distance::Method::kWasserstein}, {"omt-linear", distance::Method::kOmtLinear}}));
-  cmd->add_option("--domain", r.domain,
-                  "disk (topological disks; closed genus-0 surfaces with --cut-hole) or sphere (closed genus-0 "
-                  "surfaces; wasserstein with the squared chordal cost)")
-      ->transform(choices<jobs::Domain>({{"disk", jobs::Domain::kDisk}, {"sphere", jobs::Domain::kSphere}}));
+  add_domain(cmd, r.domain,
+             "disk (topological disks; closed genus-0 surfaces with --cut-hole) or sphere (closed genus-0 "
+             "surfaces; wasserstein with the squared chordal cost)");
   cmd->add_flag("--cut-hole", r.cut_hole, "open closed genus-0 meshes into disks by removing one vertex's star");
   cmd->add_option("--tolerance", r.tolerance,
                   "wasserstein: max relative cell-mass error of each transport (default 1e-3; the distance is read "

@@ -10,6 +10,11 @@
 
 namespace brenier::options {
 
+/// --domain disk|sphere, by name.
+CLI::Option* add_domain(CLI::App* cmd, jobs::Domain& domain, const std::string& help);
+/// --cut-hole and --hole-vertex V.
+void add_cut_hole(CLI::App* cmd, bool& cut_hole, int& hole_vertex, const std::string& help);
+
 /// map: --domain --method --markers --cut-hole --hole-vertex --tolerance --max-iterations
 /// --weights FILE --t --allow-flips.
 struct MapFlags {
