@@ -166,12 +166,7 @@ Store::Store(const std::string& dir) : dir_(dir) {
   writer_.db = open_db(dir);
   exec("PRAGMA journal_mode=WAL");
   exec("PRAGMA synchronous=NORMAL");
-  exec("CREATE TABLE IF NOT EXISTS meshes (seq INTEGER PRIMARY KEY AUTOINCREMENT, tenant TEXT NOT NULL, "
-       "id TEXT NOT NULL, record BLOB NOT NULL, UNIQUE(tenant, id))");
-  exec("CREATE TABLE IF NOT EXISTS jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT NOT NULL UNIQUE, "
-       "tenant TEXT NOT NULL, request_id TEXT NOT NULL, state INTEGER NOT NULL, record BLOB NOT NULL)");
-  exec("CREATE UNIQUE INDEX IF NOT EXISTS jobs_request ON jobs(tenant, request_id) WHERE request_id <> ''");
-  exec("CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state)");
+  migrate();
   for (int k = 0; k < 4; ++k) {
     readers_.push_back(std::make_unique<Connection>());
     readers_.back()->db = open_db(dir);
@@ -179,6 +174,53 @@ Store::Store(const std::string& dir) : dir_(dir) {
 }
 
 Store::~Store() = default;
+
+namespace {
+
+// The schema, as the steps from each version to the next: step k takes a database at
+// version k to k + 1. A database's version is SQLite's user_version; version 0 is a new
+// database or one written before versions were kept (its tables, if any, are version 1's,
+// which the first step creates only where missing). Steps are only ever appended.
+constexpr const char* kMigrations[] = {
+    // 0 -> 1: meshes and jobs, records as serialized protos.
+    "CREATE TABLE IF NOT EXISTS meshes (seq INTEGER PRIMARY KEY AUTOINCREMENT, tenant TEXT NOT NULL, "
+    "id TEXT NOT NULL, record BLOB NOT NULL, UNIQUE(tenant, id));"
+    "CREATE TABLE IF NOT EXISTS jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT NOT NULL UNIQUE, "
+    "tenant TEXT NOT NULL, request_id TEXT NOT NULL, state INTEGER NOT NULL, record BLOB NOT NULL);"
+    "CREATE UNIQUE INDEX IF NOT EXISTS jobs_request ON jobs(tenant, request_id) WHERE request_id <> '';"
+    "CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state);",
+};
+
+}  // namespace
+
+int Store::schema_version() { return static_cast<int>(std::size(kMigrations)); }
+
+// Brings the database to this build's schema, one step per transaction (a crash between
+// steps leaves a database at a version the next start continues from); refuses a database
+// a newer brenierd has written, whose rows this one would misread.
+void Store::migrate() {
+  std::lock_guard<std::mutex> lock(writer_.mutex);
+  int version = 0;
+  {
+    Stmt v(writer_, "PRAGMA user_version");
+    if (v.step()) version = static_cast<int>(v.column_int(0));
+  }
+  if (version > schema_version())
+    fail(ErrorCode::kFailedPrecondition, "the database in " + dir_ + " has schema version " + std::to_string(version) +
+                                             ", written by a newer brenierd; this one reads up to version " +
+                                             std::to_string(schema_version()));
+  for (; version < schema_version(); ++version) {
+    exec("BEGIN IMMEDIATE");
+    try {
+      exec(kMigrations[version]);
+      exec(("PRAGMA user_version = " + std::to_string(version + 1)).c_str());
+      exec("COMMIT");
+    } catch (...) {
+      sqlite3_exec(writer_.db, "ROLLBACK", nullptr, nullptr, nullptr);
+      throw;
+    }
+  }
+}
 
 // A blob is written before the row that names it (so a row never names missing bytes); a
 // kill -9 between the two leaves a blob nothing names: a mesh upload that was never

@@ -32,6 +32,9 @@ class Store {
   Store& operator=(const Store&) = delete;
 
   const std::string& dir() const { return dir_; }
+  /// The schema version this build writes (its number of migration steps). A database of a
+  /// higher version is refused at open (Error(kFailedPrecondition)); a lower one is migrated.
+  static int schema_version();
 
   // ---- blobs ----
   /// Two content-addressed namespaces: uploaded meshes (removed with the last mesh row that
@@ -89,6 +92,7 @@ class Store {
 
  private:
   void exec(const char* sql);
+  void migrate();
   std::string write_temp(const std::string& bytes);
   std::string blob_root(Blob kind) const;
   void commit_blob(Blob kind, const std::string& temp, const std::string& sha256);

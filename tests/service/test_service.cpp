@@ -10,6 +10,7 @@
 #include <set>
 #include <sstream>
 #include <thread>
+#include <sqlite3.h>
 #include <sys/wait.h>
 
 #include "common/error.hpp"
@@ -557,6 +558,46 @@ TEST(Service, KillNineMidWorkThenARestartLosesNothing) {
   }
   EXPECT_EQ(c.get(jobs[0]).attempts(), 2);  // the running one ran again
   EXPECT_EQ(c.get(jobs[2]).attempts(), 1);
+}
+
+// The schema is versioned: a database from before versions were kept is migrated and keeps
+// its rows; one written by a newer brenierd is refused at start with one line saying so.
+TEST(Service, SchemaVersionsAreMigratedOrRefused) {
+  const std::string data = temp_dir("svc-schema");
+  std::string id;
+  {
+    ServerProcess server(data);
+    id = server.client().upload_bytes(hemisphere(), "hemi").id();
+  }
+  auto user_version = [&](int set) {
+    sqlite3* db = nullptr;
+    EXPECT_EQ(sqlite3_open((data + "/brenier.db").c_str(), &db), SQLITE_OK);
+    if (set >= 0) sqlite3_exec(db, ("PRAGMA user_version = " + std::to_string(set)).c_str(), nullptr, nullptr, nullptr);
+    sqlite3_stmt* st = nullptr;
+    sqlite3_prepare_v2(db, "PRAGMA user_version", -1, &st, nullptr);
+    const int v = sqlite3_step(st) == SQLITE_ROW ? sqlite3_column_int(st, 0) : -1;
+    sqlite3_finalize(st);
+    sqlite3_close(db);
+    return v;
+  };
+  const int current = user_version(-1);
+  EXPECT_GE(current, 1);
+  EXPECT_EQ(user_version(0), 0);  // as a database of before the versions
+  {
+    ServerProcess server(data);
+    EXPECT_EQ(server.client().get_mesh(id).name(), "hemi");
+  }
+  EXPECT_EQ(user_version(-1), current);
+  EXPECT_EQ(user_version(current + 7), current + 7);
+  const std::string out = data + "-refused.txt";
+  const int rc = std::system((std::string(BRENIERD) + " --listen 127.0.0.1:0 --data " + data + " 2> " + out).c_str());
+  EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << rc;
+  std::ifstream err(out);
+  const std::string text((std::istreambuf_iterator<char>(err)), {});
+  EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 1) << text;
+  EXPECT_NE(text.find("has schema version " + std::to_string(current + 7) + ", written by a newer brenierd"),
+            std::string::npos)
+      << text;
 }
 
 TEST(Service, KillNineDuringAnUploadLeavesItAbsent) {
