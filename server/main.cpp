@@ -86,6 +86,8 @@ struct Flags {
   int workers = 0, queue = 64;
   int64_t max_upload_mb = 512, max_vertices = 5'000'000;
   int max_watches = 128, max_uploads = 32;
+  int max_jobs_per_tenant = 0;
+  int64_t max_storage_mb_per_tenant = 0, min_free_mb = 256;
   std::string tokens, tls_cert, tls_key, tls_client_ca, port_file;
   double grace = 30;
   std::string log_level = "info";
@@ -119,6 +121,9 @@ int serve(const Flags& f) {
   mo.queue = f.queue;
   mo.max_upload_bytes = f.max_upload_mb << 20;
   mo.max_vertices = f.max_vertices;
+  mo.max_jobs_per_tenant = f.max_jobs_per_tenant;
+  mo.max_storage_bytes_per_tenant = f.max_storage_mb_per_tenant << 20;
+  mo.min_free_bytes = f.min_free_mb << 20;
   brenier::server::Manager manager(store, mo);
   brenier::server::Service service(manager, std::move(auth),
                                   {.max_watches_per_tenant = f.max_watches, .max_uploads_per_tenant = f.max_uploads});
@@ -177,6 +182,13 @@ int main(int argc, char** argv) {
   app.add_option("--queue", f.queue, "queued jobs at most before RESOURCE_EXHAUSTED")->check(CLI::Range(1, 1000000));
   app.add_option("--max-upload-mb", f.max_upload_mb, "largest upload in MiB")->check(CLI::Range(1, 1 << 20));
   app.add_option("--max-vertices", f.max_vertices, "largest mesh in vertices")->check(CLI::Range(3, 100'000'000));
+  app.add_option("--max-jobs-per-tenant", f.max_jobs_per_tenant, "jobs queued or running per tenant at most (0: no quota)")
+      ->check(CLI::Range(0, 10'000'000));
+  app.add_option("--max-storage-mb-per-tenant", f.max_storage_mb_per_tenant,
+                 "MB of meshes and results per tenant at most (0: no quota)")
+      ->check(CLI::Range(int64_t{0}, int64_t{1} << 40));
+  app.add_option("--min-free-mb", f.min_free_mb, "uploads that would leave less free disk under --data are refused")
+      ->check(CLI::Range(int64_t{0}, int64_t{1} << 40));
   app.add_option("--max-watches", f.max_watches, "open WatchJob streams per tenant at most")->check(CLI::Range(1, 100000));
   app.add_option("--max-uploads", f.max_uploads, "concurrent uploads per tenant at most")->check(CLI::Range(1, 100000));
   app.add_option("--tokens", f.tokens, "file of 'TOKEN TENANT' lines: bearer tokens required");

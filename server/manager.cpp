@@ -97,6 +97,23 @@ void Manager::recover() {
   }
 }
 
+void Manager::check_room(const std::string& tenant, int64_t bytes) {
+  if (options_.max_storage_bytes_per_tenant > 0) {
+    const int64_t held = store_.storage_bytes(tenant);
+    if (held + std::max<int64_t>(bytes, 1) > options_.max_storage_bytes_per_tenant)
+      fail(ErrorCode::kResourceExhausted,
+           "you hold " + std::to_string(held) + " bytes of meshes and results; " + std::to_string(bytes) +
+               " more would pass the quota max_storage_mb_per_tenant of this server (" +
+               std::to_string(options_.max_storage_bytes_per_tenant >> 20) + " MB); delete meshes first");
+  }
+  std::error_code ec;
+  const fs::space_info space = fs::space(store_.dir(), ec);
+  if (!ec && static_cast<int64_t>(space.available) - bytes < options_.min_free_bytes)
+    fail(ErrorCode::kResourceExhausted, "the server's disk has " + std::to_string(space.available >> 20) +
+                                            " MB free; storing " + std::to_string(bytes) +
+                                            " bytes would leave less than its reserve (min_free_mb)");
+}
+
 pb::Mesh Manager::add_mesh(const std::string& tenant, const pb::UploadMeshRequest::Header& h, const std::string& bytes) {
   std::optional<mesh::Format> format;
   if (!h.format().empty()) {
@@ -127,6 +144,7 @@ pb::Mesh Manager::add_mesh(const std::string& tenant, const pb::UploadMeshReques
   m.set_genus(t.genus);
   *m.mutable_created() = TimeUtil::GetCurrentTime();
   for (const auto& p : cm.report.problems) m.add_warnings(name_options(p.message, OptionStyle::kField));
+  if (!store_.get_mesh(tenant, m.id())) check_room(tenant, m.size_bytes());  // before a byte is written
   return store_.put_mesh_with_blob(tenant, m, bytes);
 }
 
@@ -141,6 +159,9 @@ pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& r
     return *m;
   };
   const std::string kind = check_spec(request, mesh_of, SpecLimits{options_.max_vertices, options_.max_matrix_meshes});
+  // A tenant at its storage quota, or a full disk, takes no new work (a resubmission of an
+  // accepted job is still answered).
+  if (request.request_id().empty() || !store_.has_request(tenant, request.request_id())) check_room(tenant, 0);
   pb::Job job;
   job.set_id(random_id());
   job.set_request_id(request.request_id());
@@ -166,7 +187,7 @@ pb::Job Manager::submit(const std::string& tenant, const pb::SubmitJobRequest& r
   bool inserted = false;
   pb::Job stored;
   try {
-    stored = store_.insert_job(tenant, job, inserted);
+    stored = store_.insert_job(tenant, job, inserted, options_.max_jobs_per_tenant);
   } catch (...) {
     std::lock_guard<std::mutex> lock(mutex_);
     live_.erase(job.id());

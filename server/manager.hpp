@@ -24,6 +24,9 @@ struct ManagerOptions {
   int64_t max_upload_bytes = int64_t{512} << 20;
   int64_t max_vertices = 5'000'000;
   int max_matrix_meshes = 5000;
+  int max_jobs_per_tenant = 0;                 // queued and running (0: no quota)
+  int64_t max_storage_bytes_per_tenant = 0;    // meshes and results (0: no quota)
+  int64_t min_free_bytes = int64_t{256} << 20;  // an upload that would leave less is refused
 };
 
 /// One job's progress as it happens: the events since the job was (re)started, the latest
@@ -52,6 +55,10 @@ class Manager {
   /// into the tenant's mesh: parsed, validated (INVALID_ARGUMENT with the validator's
   /// message), vertex limit (RESOURCE_EXHAUSTED), then stored.
   pb::Mesh add_mesh(const std::string& tenant, const pb::UploadMeshRequest::Header& header, const std::string& bytes);
+  /// RESOURCE_EXHAUSTED naming the limit when `bytes` more would put the tenant over its
+  /// storage quota or leave the data directory's disk with less than min_free_bytes (with 0
+  /// bytes: when the tenant is at its quota or the disk below its reserve already).
+  void check_room(const std::string& tenant, int64_t bytes);
 
   pb::Job submit(const std::string& tenant, const pb::SubmitJobRequest& request);
   pb::Job get(const std::string& tenant, const std::string& id);

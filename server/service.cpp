@@ -70,6 +70,8 @@ grpc::Status Service::UploadMesh(grpc::ServerContext* ctx, grpc::ServerReader<pb
     if (h.size_bytes() > limit)
       fail(ErrorCode::kResourceExhausted, "the upload is " + std::to_string(h.size_bytes()) +
                                               " bytes; this server takes at most " + std::to_string(limit));
+    // Quota and disk, before the bytes are sent (and again before they are written).
+    if (!manager_.store().get_mesh(tenant, h.sha256())) manager_.check_room(tenant, h.size_bytes());
     // The bytes are kept in memory (they are parsed whole; the declared size is within the
     // limit) and stored as a blob only once they have checked out.
     std::string bytes;

@@ -81,6 +81,13 @@ std::optional<M> first_record(Store::Connection& c, const char* sql, const std::
   return parse<M>(s.column_blob(0));
 }
 
+// The bytes of a job's results (what it holds of its tenant's storage quota).
+int64_t result_bytes(const pb::Job& job) {
+  int64_t n = 0;
+  for (const pb::Artifact& a : job.result().artifacts()) n += a.size_bytes();
+  return n;
+}
+
 int64_t token_value(const std::string& token) {
   if (token.empty()) return 0;
   char* end = nullptr;
@@ -178,17 +185,45 @@ Store::~Store() = default;
 namespace {
 
 // The schema, as the steps from each version to the next: step k takes a database at
-// version k to k + 1. A database's version is SQLite's user_version; version 0 is a new
-// database or one written before versions were kept (its tables, if any, are version 1's,
-// which the first step creates only where missing). Steps are only ever appended.
-constexpr const char* kMigrations[] = {
+// version k to k + 1 (its SQL, then its C++ part over the rows, if any). A database's
+// version is SQLite's user_version; version 0 is a new database or one written before
+// versions were kept (its tables, if any, are version 1's, which the first step creates
+// only where missing). Steps are only ever appended.
+struct Migration {
+  const char* sql;
+  void (*rows)(Store::Connection& c);
+};
+
+// Step 2's rows: each mesh's size and each job's result size, from their records.
+void backfill_sizes(Store::Connection& c) {
+  std::vector<std::pair<int64_t, int64_t>> sizes;
+  {
+    Stmt m(c, "SELECT seq, record FROM meshes");
+    while (m.step()) sizes.emplace_back(m.column_int(0), parse<pb::Mesh>(m.column_blob(1)).size_bytes());
+  }
+  for (const auto& [seq, size] : sizes) Stmt(c, "UPDATE meshes SET size_bytes = ? WHERE seq = ?").integer(1, size).integer(2, seq).step();
+  sizes.clear();
+  {
+    Stmt j(c, "SELECT seq, record FROM jobs");
+    while (j.step()) sizes.emplace_back(j.column_int(0), result_bytes(parse<pb::Job>(j.column_blob(1))));
+  }
+  for (const auto& [seq, size] : sizes) Stmt(c, "UPDATE jobs SET result_bytes = ? WHERE seq = ?").integer(1, size).integer(2, seq).step();
+}
+
+const Migration kMigrations[] = {
     // 0 -> 1: meshes and jobs, records as serialized protos.
-    "CREATE TABLE IF NOT EXISTS meshes (seq INTEGER PRIMARY KEY AUTOINCREMENT, tenant TEXT NOT NULL, "
-    "id TEXT NOT NULL, record BLOB NOT NULL, UNIQUE(tenant, id));"
-    "CREATE TABLE IF NOT EXISTS jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT NOT NULL UNIQUE, "
-    "tenant TEXT NOT NULL, request_id TEXT NOT NULL, state INTEGER NOT NULL, record BLOB NOT NULL);"
-    "CREATE UNIQUE INDEX IF NOT EXISTS jobs_request ON jobs(tenant, request_id) WHERE request_id <> '';"
-    "CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state);",
+    {"CREATE TABLE IF NOT EXISTS meshes (seq INTEGER PRIMARY KEY AUTOINCREMENT, tenant TEXT NOT NULL, "
+     "id TEXT NOT NULL, record BLOB NOT NULL, UNIQUE(tenant, id));"
+     "CREATE TABLE IF NOT EXISTS jobs (seq INTEGER PRIMARY KEY AUTOINCREMENT, id TEXT NOT NULL UNIQUE, "
+     "tenant TEXT NOT NULL, request_id TEXT NOT NULL, state INTEGER NOT NULL, record BLOB NOT NULL);"
+     "CREATE UNIQUE INDEX IF NOT EXISTS jobs_request ON jobs(tenant, request_id) WHERE request_id <> '';"
+     "CREATE INDEX IF NOT EXISTS jobs_state ON jobs(state);",
+     nullptr},
+    // 1 -> 2: sizes for the per-tenant storage quota, and an index for the per-tenant job count.
+    {"ALTER TABLE meshes ADD COLUMN size_bytes INTEGER NOT NULL DEFAULT 0;"
+     "ALTER TABLE jobs ADD COLUMN result_bytes INTEGER NOT NULL DEFAULT 0;"
+     "CREATE INDEX IF NOT EXISTS jobs_tenant_state ON jobs(tenant, state);",
+     backfill_sizes},
 };
 
 }  // namespace
@@ -212,7 +247,8 @@ void Store::migrate() {
   for (; version < schema_version(); ++version) {
     exec("BEGIN IMMEDIATE");
     try {
-      exec(kMigrations[version]);
+      exec(kMigrations[version].sql);
+      if (kMigrations[version].rows) kMigrations[version].rows(writer_);
       exec(("PRAGMA user_version = " + std::to_string(version + 1)).c_str());
       exec("COMMIT");
     } catch (...) {
@@ -324,10 +360,11 @@ pb::Mesh Store::put_mesh_with_blob(const std::string& tenant, const pb::Mesh& me
   if (temp.empty() && !has_blob(Blob::kMesh, mesh.id())) temp = write_temp(bytes);  // deleted meanwhile
   if (!temp.empty()) commit_blob(Blob::kMesh, temp, mesh.id());
   test_hooks::at(test_hooks::Point::kMeshBeforeRow);
-  Stmt(writer_, "INSERT OR IGNORE INTO meshes (tenant, id, record) VALUES (?, ?, ?)")
+  Stmt(writer_, "INSERT OR IGNORE INTO meshes (tenant, id, record, size_bytes) VALUES (?, ?, ?, ?)")
       .text(1, tenant)
       .text(2, mesh.id())
       .blob(3, mesh.SerializeAsString())
+      .integer(4, mesh.size_bytes())
       .step();
   std::optional<pb::Mesh> stored = first_record<pb::Mesh>(writer_, kMeshById, tenant, mesh.id());
   if (!stored) fail(ErrorCode::kInternal, "database: a mesh just stored is not there");
@@ -364,7 +401,7 @@ bool Store::delete_mesh(const std::string& tenant, const std::string& id) {
   return true;
 }
 
-pb::Job Store::insert_job(const std::string& tenant, const pb::Job& job, bool& inserted) {
+pb::Job Store::insert_job(const std::string& tenant, const pb::Job& job, bool& inserted, int max_unfinished) {
   std::lock_guard<std::mutex> lock(writer_.mutex);
   if (!job.request_id().empty()) {
     if (std::optional<pb::Job> earlier = first_record<pb::Job>(
@@ -372,6 +409,16 @@ pb::Job Store::insert_job(const std::string& tenant, const pb::Job& job, bool& i
       inserted = false;
       return *earlier;
     }
+  }
+  // Counted under the writer's lock, with the insert: concurrent submissions cannot both
+  // take the last place.
+  if (max_unfinished > 0) {
+    Stmt n(writer_, "SELECT COUNT(*) FROM jobs WHERE tenant = ? AND state IN (?, ?)");
+    n.text(1, tenant).integer(2, pb::QUEUED).integer(3, pb::RUNNING);
+    const int64_t unfinished = n.step() ? n.column_int(0) : 0;
+    if (unfinished >= max_unfinished)
+      fail(ErrorCode::kResourceExhausted, "you have " + std::to_string(unfinished) +
+                                              " jobs queued or running, the quota max_jobs_per_tenant of this server");
   }
   Stmt(writer_, "INSERT INTO jobs (id, tenant, request_id, state, record) VALUES (?, ?, ?, ?, ?)")
       .text(1, job.id())
@@ -388,6 +435,14 @@ std::optional<pb::Job> Store::get_job(const std::string& tenant, const std::stri
   Connection* c = nullptr;
   auto lock = reader(c);
   return first_record<pb::Job>(*c, "SELECT record FROM jobs WHERE tenant = ? AND id = ?", tenant, id);
+}
+
+bool Store::has_request(const std::string& tenant, const std::string& request_id) {
+  Connection* c = nullptr;
+  auto lock = reader(c);
+  Stmt s(*c, "SELECT 1 FROM jobs WHERE tenant = ? AND request_id = ?");
+  s.text(1, tenant).text(2, request_id);
+  return s.step();
 }
 
 std::optional<pb::Job> Store::get_job_any(const std::string& id, std::string* tenant) {
@@ -412,16 +467,26 @@ std::vector<pb::Job> Store::list_jobs(const std::string& tenant, pb::JobState st
 
 void Store::update_job(const pb::Job& job) {
   std::lock_guard<std::mutex> lock(writer_.mutex);
-  Stmt(writer_, "UPDATE jobs SET state = ?, record = ? WHERE id = ?")
+  Stmt(writer_, "UPDATE jobs SET state = ?, record = ?, result_bytes = ? WHERE id = ?")
       .integer(1, job.state())
       .blob(2, job.SerializeAsString())
-      .text(3, job.id())
+      .integer(3, result_bytes(job))
+      .text(4, job.id())
       .step();
 }
 
 void Store::delete_job(const std::string& id) {
   std::lock_guard<std::mutex> lock(writer_.mutex);
   Stmt(writer_, "DELETE FROM jobs WHERE id = ?").text(1, id).step();
+}
+
+int64_t Store::storage_bytes(const std::string& tenant) {
+  Connection* c = nullptr;
+  auto lock = reader(c);
+  Stmt s(*c, "SELECT (SELECT COALESCE(SUM(size_bytes), 0) FROM meshes WHERE tenant = ?) + "
+             "(SELECT COALESCE(SUM(result_bytes), 0) FROM jobs WHERE tenant = ?)");
+  s.text(1, tenant).text(2, tenant);
+  return s.step() ? s.column_int(0) : 0;
 }
 
 std::vector<std::string> Store::unfinished_jobs() {

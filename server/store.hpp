@@ -65,8 +65,12 @@ class Store {
   // ---- jobs ----
   /// Inserts a new job (its id, request_id and spec set), unless the tenant already has a job
   /// with that non-empty request_id: then that job is returned and `inserted` is false.
-  pb::Job insert_job(const std::string& tenant, const pb::Job& job, bool& inserted);
+  /// With `max_unfinished` > 0, a tenant with that many jobs queued or running gets
+  /// Error(kResourceExhausted) naming the quota instead.
+  pb::Job insert_job(const std::string& tenant, const pb::Job& job, bool& inserted, int max_unfinished = 0);
   std::optional<pb::Job> get_job(const std::string& tenant, const std::string& id);
+  /// Whether the tenant has a job submitted with this request_id.
+  bool has_request(const std::string& tenant, const std::string& request_id);
   /// The job whatever its tenant (the server's own use), with its tenant.
   std::optional<pb::Job> get_job_any(const std::string& id, std::string* tenant = nullptr);
   std::vector<pb::Job> list_jobs(const std::string& tenant, pb::JobState state, const std::string& token, int limit,
@@ -77,6 +81,8 @@ class Store {
   /// Removes the blobs no mesh row or job artifact names (left by a kill between a blob and
   /// its row); returns how many. Call before serving.
   int sweep_orphaned_blobs();
+  /// The bytes the tenant holds: its meshes' uploads and its jobs' results.
+  int64_t storage_bytes(const std::string& tenant);
   /// Queued and running jobs of every tenant, oldest first.
   std::vector<std::string> unfinished_jobs();
 

@@ -569,26 +569,33 @@ TEST(Service, SchemaVersionsAreMigratedOrRefused) {
     ServerProcess server(data);
     id = server.client().upload_bytes(hemisphere(), "hemi").id();
   }
-  auto user_version = [&](int set) {
+  // One statement on the database, and the first column of its first row (or -1).
+  auto sql = [&](const std::string& statement) {
     sqlite3* db = nullptr;
     EXPECT_EQ(sqlite3_open((data + "/brenier.db").c_str(), &db), SQLITE_OK);
-    if (set >= 0) sqlite3_exec(db, ("PRAGMA user_version = " + std::to_string(set)).c_str(), nullptr, nullptr, nullptr);
     sqlite3_stmt* st = nullptr;
-    sqlite3_prepare_v2(db, "PRAGMA user_version", -1, &st, nullptr);
-    const int v = sqlite3_step(st) == SQLITE_ROW ? sqlite3_column_int(st, 0) : -1;
+    EXPECT_EQ(sqlite3_prepare_v2(db, statement.c_str(), -1, &st, nullptr), SQLITE_OK) << sqlite3_errmsg(db);
+    const int rc = sqlite3_step(st);
+    const int64_t v = rc == SQLITE_ROW ? sqlite3_column_int64(st, 0) : -1;
+    EXPECT_TRUE(rc == SQLITE_ROW || rc == SQLITE_DONE) << sqlite3_errmsg(db);
     sqlite3_finalize(st);
     sqlite3_close(db);
     return v;
   };
-  const int current = user_version(-1);
-  EXPECT_GE(current, 1);
-  EXPECT_EQ(user_version(0), 0);  // as a database of before the versions
+  const int64_t current = sql("PRAGMA user_version");
+  EXPECT_GE(current, 2);
+  // As a database of before the versions: version 1's tables, user_version 0.
+  sql("ALTER TABLE meshes DROP COLUMN size_bytes");
+  sql("ALTER TABLE jobs DROP COLUMN result_bytes");
+  sql("PRAGMA user_version = 0");
   {
     ServerProcess server(data);
     EXPECT_EQ(server.client().get_mesh(id).name(), "hemi");
   }
-  EXPECT_EQ(user_version(-1), current);
-  EXPECT_EQ(user_version(current + 7), current + 7);
+  EXPECT_EQ(sql("PRAGMA user_version"), current);
+  // The sizes the storage quota counts were filled in from the records.
+  EXPECT_EQ(sql("SELECT size_bytes FROM meshes"), static_cast<int64_t>(hemisphere().size()));
+  sql("PRAGMA user_version = " + std::to_string(current + 7));
   const std::string out = data + "-refused.txt";
   const int rc = std::system((std::string(BRENIERD) + " --listen 127.0.0.1:0 --data " + data + " 2> " + out).c_str());
   EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << rc;
@@ -805,6 +812,42 @@ TEST(Service, NamesIdsAndCountsFromClientsAreBounded) {
   pb::SubmitJobRequest long_id = map_spec(std::string(65, 'f'), pb::DISK, pb::CONFORMAL);
   expect(status_of([&] { c.submit(long_id); }), grpc::StatusCode::INVALID_ARGUMENT, "ids are 64 hex digits");
   EXPECT_EQ(server.health(), 1);
+}
+
+// Quotas per tenant and the disk's reserve: RESOURCE_EXHAUSTED naming the limit, before a
+// byte is written; a resubmission of an accepted job is still answered.
+TEST(Service, QuotasAndTheDiskReserveAreKept) {
+  {
+    ServerProcess server(temp_dir("svc-quota-jobs"), {"--workers", "1", "--max-jobs-per-tenant", "1"});
+    Client c = server.client();
+    const std::string big = c.upload_bytes(big_hemisphere(), "big").id();
+    pb::SubmitJobRequest first = map_spec(big, pb::DISK, pb::AREA_PRESERVING);
+    first.set_request_id("quota-first");
+    const pb::Job running = c.submit(first);
+    EXPECT_STATUS(c.submit(map_spec(big, pb::DISK, pb::CONFORMAL)), RESOURCE_EXHAUSTED,
+                  "jobs queued or running, the quota max_jobs_per_tenant");
+    EXPECT_EQ(c.submit(first).id(), running.id());  // the same request: the same job
+    c.cancel(running.id());
+    EXPECT_EQ(c.watch(running.id()).state(), pb::CANCELLED);
+    EXPECT_EQ(c.watch(c.submit(map_spec(big, pb::DISK, pb::CONFORMAL)).id()).state(), pb::SUCCEEDED);
+  }
+  {
+    const std::string data = temp_dir("svc-quota-storage");
+    ServerProcess server(data, {"--max-storage-mb-per-tenant", "1"});
+    Client c = server.client();
+    ASSERT_GT(big_hemisphere().size(), size_t{1} << 20);
+    c.upload_bytes(hemisphere(), "small");
+    EXPECT_STATUS(c.upload_bytes(big_hemisphere(), "big"), RESOURCE_EXHAUSTED, "quota max_storage_mb_per_tenant");
+    EXPECT_FALSE(std::filesystem::exists(data + "/blobs/meshes/" + client::sha256_hex(big_hemisphere()).substr(0, 2) +
+                                         "/" + client::sha256_hex(big_hemisphere())));
+    c.upload_bytes(hemisphere(), "small");  // what the tenant has already is answered
+  }
+  {
+    ServerProcess server(temp_dir("svc-quota-disk"), {"--min-free-mb", "1099511627776"});
+    Client c = server.client();
+    EXPECT_STATUS(c.upload_bytes(hemisphere(), "h"), RESOURCE_EXHAUSTED, "would leave less than its reserve (min_free_mb)");
+    EXPECT_EQ(server.health(), 1);
+  }
 }
 
 TEST(Service, ATenantsOpenWatchesAndUploadsAreCapped) {
