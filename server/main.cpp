@@ -88,6 +88,7 @@ struct Flags {
   int max_watches = 128, max_uploads = 32;
   int max_jobs_per_tenant = 0;
   int64_t max_storage_mb_per_tenant = 0, min_free_mb = 256;
+  double retention_days = 30;
   std::string tokens, tls_cert, tls_key, tls_client_ca, port_file;
   double grace = 30;
   std::string log_level = "info";
@@ -124,6 +125,7 @@ int serve(const Flags& f) {
   mo.max_jobs_per_tenant = f.max_jobs_per_tenant;
   mo.max_storage_bytes_per_tenant = f.max_storage_mb_per_tenant << 20;
   mo.min_free_bytes = f.min_free_mb << 20;
+  mo.retention_seconds = f.retention_days * 86400;
   brenier::server::Manager manager(store, mo);
   brenier::server::Service service(manager, std::move(auth),
                                   {.max_watches_per_tenant = f.max_watches, .max_uploads_per_tenant = f.max_uploads});
@@ -187,6 +189,9 @@ int main(int argc, char** argv) {
   app.add_option("--max-storage-mb-per-tenant", f.max_storage_mb_per_tenant,
                  "MB of meshes and results per tenant at most (0: no quota)")
       ->check(CLI::Range(int64_t{0}, int64_t{1} << 40));
+  app.add_option("--retention-days", f.retention_days,
+                 "finished jobs and their results are removed this long after they finish (0: kept)")
+      ->check(CLI::Range(0.0, 36500.0));
   app.add_option("--min-free-mb", f.min_free_mb, "uploads that would leave less free disk under --data are refused")
       ->check(CLI::Range(int64_t{0}, int64_t{1} << 40));
   app.add_option("--max-watches", f.max_watches, "open WatchJob streams per tenant at most")->check(CLI::Range(1, 100000));

@@ -64,9 +64,36 @@ Manager::Manager(Store& store, const ManagerOptions& options) : store_(store), o
   if (options_.workers <= 0) options_.workers = hardware_threads();
   if (options_.queue < 1) invalid("the queue must hold at least one job");
   scheduler_ = std::make_unique<Scheduler>(options_.workers, options_.queue, [this](const std::string& id) { run(id); });
+  if (options_.retention_seconds > 0) expirer_ = std::thread([this] { expire_loop(); });
+}
+
+// Every quarter of the retention period (between a second and an hour), the jobs finished
+// longer ago than it go, with their results.
+void Manager::expire_loop() {
+  const double period = std::clamp(options_.retention_seconds / 4, 1.0, 3600.0);
+  const auto spare = std::chrono::seconds(static_cast<int64_t>(std::min(600.0, options_.retention_seconds / 2)));
+  std::unique_lock<std::mutex> lock(expire_mutex_);
+  while (!expire_stop_) {
+    lock.unlock();
+    try {
+      const int64_t now = TimeUtil::GetCurrentTime().seconds();
+      if (const int n = store_.expire_jobs(now - static_cast<int64_t>(options_.retention_seconds), spare))
+        spdlog::info("expired {} finished jobs older than the retention period", n);
+    } catch (const std::exception& e) {
+      spdlog::warn("expiring finished jobs failed: {}", e.what());
+    }
+    lock.lock();
+    expire_wake_.wait_for(lock, std::chrono::duration<double>(period), [this] { return expire_stop_; });
+  }
 }
 
 Manager::~Manager() {
+  {
+    std::lock_guard<std::mutex> lock(expire_mutex_);
+    expire_stop_ = true;
+  }
+  expire_wake_.notify_all();
+  if (expirer_.joinable()) expirer_.join();
   if (scheduler_) {
     scheduler_->stop_taking();
     {

@@ -11,6 +11,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <thread>
 
 #include "brenier/v1/brenier.pb.h"
 #include "scheduler.hpp"
@@ -27,6 +28,7 @@ struct ManagerOptions {
   int max_jobs_per_tenant = 0;                 // queued and running (0: no quota)
   int64_t max_storage_bytes_per_tenant = 0;    // meshes and results (0: no quota)
   int64_t min_free_bytes = int64_t{256} << 20;  // an upload that would leave less is refused
+  double retention_seconds = 30 * 86400.0;     // finished jobs and their results (0: kept)
 };
 
 /// One job's progress as it happens: the events since the job was (re)started, the latest
@@ -93,6 +95,12 @@ class Manager {
   std::mutex running_mutex_;
   std::condition_variable running_changed_;
   int running_ = 0;
+  // Retention: a thread that expires finished jobs (Store::expire_jobs) now and then.
+  void expire_loop();
+  std::mutex expire_mutex_;
+  std::condition_variable expire_wake_;
+  bool expire_stop_ = false;
+  std::thread expirer_;
   std::unique_ptr<Scheduler> scheduler_;  // last: its workers use the members above
 };
 

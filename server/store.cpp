@@ -6,6 +6,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <chrono>
 #include <atomic>
 #include <filesystem>
 #include <fstream>
@@ -210,6 +211,16 @@ void backfill_sizes(Store::Connection& c) {
   for (const auto& [seq, size] : sizes) Stmt(c, "UPDATE jobs SET result_bytes = ? WHERE seq = ?").integer(1, size).integer(2, seq).step();
 }
 
+// Step 3's rows: when each finished job finished (seconds since the epoch).
+void backfill_finished(Store::Connection& c) {
+  std::vector<std::pair<int64_t, int64_t>> at;
+  {
+    Stmt j(c, "SELECT seq, record FROM jobs");
+    while (j.step()) at.emplace_back(j.column_int(0), parse<pb::Job>(j.column_blob(1)).finished().seconds());
+  }
+  for (const auto& [seq, t] : at) Stmt(c, "UPDATE jobs SET finished_at = ? WHERE seq = ?").integer(1, t).integer(2, seq).step();
+}
+
 const Migration kMigrations[] = {
     // 0 -> 1: meshes and jobs, records as serialized protos.
     {"CREATE TABLE IF NOT EXISTS meshes (seq INTEGER PRIMARY KEY AUTOINCREMENT, tenant TEXT NOT NULL, "
@@ -224,6 +235,10 @@ const Migration kMigrations[] = {
      "ALTER TABLE jobs ADD COLUMN result_bytes INTEGER NOT NULL DEFAULT 0;"
      "CREATE INDEX IF NOT EXISTS jobs_tenant_state ON jobs(tenant, state);",
      backfill_sizes},
+    // 2 -> 3: when a job finished, for retention.
+    {"ALTER TABLE jobs ADD COLUMN finished_at INTEGER NOT NULL DEFAULT 0;"
+     "CREATE INDEX IF NOT EXISTS jobs_finished ON jobs(finished_at) WHERE finished_at > 0;",
+     backfill_finished},
 };
 
 }  // namespace
@@ -344,7 +359,13 @@ std::string Store::write_temp(const std::string& bytes) {
 
 std::string Store::put_blob(Blob kind, const std::string& bytes, const std::string& known_sha) {
   const std::string sha = known_sha.empty() ? sha256_hex(bytes) : known_sha;
-  if (has_blob(kind, sha)) return sha;
+  if (has_blob(kind, sha)) {
+    // Touched: expire_jobs spares recent blobs, which a job about to record them may share
+    // with a job it expires.
+    std::error_code ec;
+    fs::last_write_time(blob_path(kind, sha), fs::file_time_type::clock::now(), ec);
+    return sha;
+  }
   commit_blob(kind, write_temp(bytes), sha);
   return sha;
 }
@@ -467,17 +488,60 @@ std::vector<pb::Job> Store::list_jobs(const std::string& tenant, pb::JobState st
 
 void Store::update_job(const pb::Job& job) {
   std::lock_guard<std::mutex> lock(writer_.mutex);
-  Stmt(writer_, "UPDATE jobs SET state = ?, record = ?, result_bytes = ? WHERE id = ?")
+  Stmt(writer_, "UPDATE jobs SET state = ?, record = ?, result_bytes = ?, finished_at = ? WHERE id = ?")
       .integer(1, job.state())
       .blob(2, job.SerializeAsString())
       .integer(3, result_bytes(job))
-      .text(4, job.id())
+      .integer(4, job.finished().seconds())
+      .text(5, job.id())
       .step();
 }
 
 void Store::delete_job(const std::string& id) {
   std::lock_guard<std::mutex> lock(writer_.mutex);
   Stmt(writer_, "DELETE FROM jobs WHERE id = ?").text(1, id).step();
+}
+
+int Store::expire_jobs(int64_t finished_before, std::chrono::seconds spare) {
+  std::lock_guard<std::mutex> lock(writer_.mutex);
+  std::vector<std::string> ids, blobs;
+  {
+    Stmt s(writer_, "SELECT id, record FROM jobs WHERE finished_at > 0 AND finished_at < ?");
+    s.integer(1, finished_before);
+    while (s.step()) {
+      ids.push_back(s.column_text(0));
+      const pb::Job job = parse<pb::Job>(s.column_blob(1));
+      for (const pb::Artifact& a : job.result().artifacts()) blobs.push_back(a.sha256());
+    }
+  }
+  if (ids.empty()) return 0;
+  exec("BEGIN IMMEDIATE");
+  try {
+    for (const std::string& id : ids) Stmt(writer_, "DELETE FROM jobs WHERE id = ?").text(1, id).step();
+    exec("COMMIT");
+  } catch (...) {
+    sqlite3_exec(writer_.db, "ROLLBACK", nullptr, nullptr, nullptr);
+    throw;
+  }
+  // A result's bytes go with the last job that names them (content-addressed: two jobs may
+  // share them), under the lock that every job update takes.
+  std::set<std::string> named;
+  {
+    Stmt j(writer_, "SELECT record FROM jobs WHERE result_bytes > 0");
+    while (j.step()) {
+      const pb::Job job = parse<pb::Job>(j.column_blob(0));
+      for (const pb::Artifact& a : job.result().artifacts()) named.insert(a.sha256());
+    }
+  }
+  const auto recent = fs::file_time_type::clock::now() - spare;
+  for (const std::string& sha : blobs) {
+    if (named.count(sha) || !is_sha256_hex(sha)) continue;
+    std::error_code ec;
+    const std::string path = blob_path(Blob::kResult, sha);
+    const auto written = fs::last_write_time(path, ec);
+    if (!ec && written < recent) fs::remove(path, ec);
+  }
+  return static_cast<int>(ids.size());
 }
 
 int64_t Store::storage_bytes(const std::string& tenant) {

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <memory>
 #include <mutex>
@@ -81,6 +82,10 @@ class Store {
   /// Removes the blobs no mesh row or job artifact names (left by a kill between a blob and
   /// its row); returns how many. Call before serving.
   int sweep_orphaned_blobs();
+  /// Removes the jobs that finished before `finished_before` (seconds since the epoch), and
+  /// the result blobs no remaining job names unless written (or put again) within `spare`:
+  /// a job finishing now may record the same bytes. Returns how many jobs.
+  int expire_jobs(int64_t finished_before, std::chrono::seconds spare);
   /// The bytes the tenant holds: its meshes' uploads and its jobs' results.
   int64_t storage_bytes(const std::string& tenant);
   /// Queued and running jobs of every tenant, oldest first.

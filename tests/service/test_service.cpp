@@ -587,6 +587,8 @@ TEST(Service, SchemaVersionsAreMigratedOrRefused) {
   // As a database of before the versions: version 1's tables, user_version 0.
   sql("ALTER TABLE meshes DROP COLUMN size_bytes");
   sql("ALTER TABLE jobs DROP COLUMN result_bytes");
+  sql("DROP INDEX jobs_finished");
+  sql("ALTER TABLE jobs DROP COLUMN finished_at");
   sql("PRAGMA user_version = 0");
   {
     ServerProcess server(data);
@@ -605,6 +607,34 @@ TEST(Service, SchemaVersionsAreMigratedOrRefused) {
   EXPECT_NE(text.find("has schema version " + std::to_string(current + 7) + ", written by a newer brenierd"),
             std::string::npos)
       << text;
+}
+
+// Retention: a finished job and its results go once the retention period has passed; the
+// mesh stays.
+TEST(Service, FinishedJobsExpireAfterTheRetentionPeriod) {
+  const std::string data = temp_dir("svc-retention");
+  ServerProcess server(data, {"--retention-days", "0.00003"});  // 2.6 s
+  Client c = server.client();
+  const std::string m = c.upload_bytes(hemisphere(), "hemi").id();
+  const pb::Job j = c.watch(c.submit(map_spec(m, pb::DISK, pb::CONFORMAL)).id());
+  ASSERT_EQ(j.state(), pb::SUCCEEDED);
+  ASSERT_GT(j.result().artifacts_size(), 0);
+  const std::string sha = j.result().artifacts(0).sha256();
+  const std::string blob = data + "/blobs/results/" + sha.substr(0, 2) + "/" + sha;
+  EXPECT_TRUE(std::filesystem::exists(blob));
+  const auto t0 = std::chrono::steady_clock::now();
+  bool gone = false;
+  while (!gone && std::chrono::steady_clock::now() - t0 < std::chrono::duration<double>(20 * kSlowdown)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    try {
+      c.get(j.id());
+    } catch (const client::Error& e) {
+      gone = e.code() == grpc::StatusCode::NOT_FOUND;
+    }
+  }
+  EXPECT_TRUE(gone) << "the job is still there";
+  EXPECT_FALSE(std::filesystem::exists(blob)) << "its result is still there";
+  EXPECT_EQ(c.get_mesh(m).name(), "hemi");
 }
 
 TEST(Service, KillNineDuringAnUploadLeavesItAbsent) {
