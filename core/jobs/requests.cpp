@@ -108,6 +108,11 @@ void ShapeRequest::validate() const {
     invalid("{cost_tolerance} must lie in [0, 1] (0: off)");
   if (rings < 1 || rings > 4096) invalid("{rings} must lie in [1, 4096]");
   if (angles < 4 || angles > 65536) invalid("{angles} must lie in [4, 65536]");
+  // Each shape stores and locates rings x angles samples: bounded together, or a request of
+  // a few bytes asks for gigabytes per shape.
+  if (int64_t{rings} * angles > kMaxSamples)
+    invalid("{rings} x {angles} = " + std::to_string(int64_t{rings} * angles) + " quadrature samples; at most " +
+            std::to_string(kMaxSamples));
 }
 
 void DistanceRequest::validate() const {

@@ -8,6 +8,7 @@
 // them as its flag or its proto field (common/error.hpp, name_options).
 #pragma once
 
+#include <cstdint>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -60,6 +61,7 @@ struct ShapeRequest {
   bool refine_rotation = false;  // disk: refine the best turn by exact evaluations
   bool raw = false;              // eq. 3.31 as it stands, no quantization bias removed
   int rings = 64, angles = 256;  // the quadrature of the OMT-map samples (Def. 2.24)
+  static constexpr int64_t kMaxSamples = int64_t{1} << 20;  // rings x angles at most
 
   void validate() const;
 };

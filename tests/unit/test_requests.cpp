@@ -80,6 +80,10 @@ TEST(Requests, ShapeDistanceAndMatrixRequestsAreChecked) {
   s = {};
   s.angles = 1 << 20;
   EXPECT_ERROR(s.validate(), bad, "{angles}");
+  s = {};
+  s.rings = 4096;
+  s.angles = 65536;  // each within its range, together 2^28 samples per shape
+  EXPECT_ERROR(s.validate(), bad, "{rings} x {angles} = 268435456 quadrature samples; at most 1048576");
 
   DistanceRequest d;
   d.a = {0, 5};
