@@ -89,6 +89,17 @@ int64_t result_bytes(const pb::Job& job) {
   return n;
 }
 
+// The result blobs the jobs' artifacts name.
+std::set<std::string> result_blobs_named(Store::Connection& c) {
+  std::set<std::string> named;
+  Stmt j(c, "SELECT record FROM jobs");
+  while (j.step()) {
+    const pb::Job job = parse<pb::Job>(j.column_blob(0));  // named: a range-for keeps only its last temporary
+    for (const pb::Artifact& a : job.result().artifacts()) named.insert(a.sha256());
+  }
+  return named;
+}
+
 int64_t token_value(const std::string& token) {
   if (token.empty()) return 0;
   char* end = nullptr;
@@ -195,30 +206,30 @@ struct Migration {
   void (*rows)(Store::Connection& c);
 };
 
-// Step 2's rows: each mesh's size and each job's result size, from their records.
+// A column filled in from each row's record: `select` yields (seq, record), `update` sets
+// the column of one seq.
+template <class M, class Value>
+void fill_from_records(Store::Connection& c, const char* select, const char* update, Value value) {
+  std::vector<std::pair<int64_t, int64_t>> rows;
+  {
+    Stmt s(c, select);
+    while (s.step()) rows.emplace_back(s.column_int(0), value(parse<M>(s.column_blob(1))));
+  }
+  for (const auto& [seq, v] : rows) Stmt(c, update).integer(1, v).integer(2, seq).step();
+}
+
+// Step 2's rows: each mesh's size and each job's result size.
 void backfill_sizes(Store::Connection& c) {
-  std::vector<std::pair<int64_t, int64_t>> sizes;
-  {
-    Stmt m(c, "SELECT seq, record FROM meshes");
-    while (m.step()) sizes.emplace_back(m.column_int(0), parse<pb::Mesh>(m.column_blob(1)).size_bytes());
-  }
-  for (const auto& [seq, size] : sizes) Stmt(c, "UPDATE meshes SET size_bytes = ? WHERE seq = ?").integer(1, size).integer(2, seq).step();
-  sizes.clear();
-  {
-    Stmt j(c, "SELECT seq, record FROM jobs");
-    while (j.step()) sizes.emplace_back(j.column_int(0), result_bytes(parse<pb::Job>(j.column_blob(1))));
-  }
-  for (const auto& [seq, size] : sizes) Stmt(c, "UPDATE jobs SET result_bytes = ? WHERE seq = ?").integer(1, size).integer(2, seq).step();
+  fill_from_records<pb::Mesh>(c, "SELECT seq, record FROM meshes", "UPDATE meshes SET size_bytes = ? WHERE seq = ?",
+                              [](const pb::Mesh& m) { return m.size_bytes(); });
+  fill_from_records<pb::Job>(c, "SELECT seq, record FROM jobs", "UPDATE jobs SET result_bytes = ? WHERE seq = ?",
+                             result_bytes);
 }
 
 // Step 3's rows: when each finished job finished (seconds since the epoch).
 void backfill_finished(Store::Connection& c) {
-  std::vector<std::pair<int64_t, int64_t>> at;
-  {
-    Stmt j(c, "SELECT seq, record FROM jobs");
-    while (j.step()) at.emplace_back(j.column_int(0), parse<pb::Job>(j.column_blob(1)).finished().seconds());
-  }
-  for (const auto& [seq, t] : at) Stmt(c, "UPDATE jobs SET finished_at = ? WHERE seq = ?").integer(1, t).integer(2, seq).step();
+  fill_from_records<pb::Job>(c, "SELECT seq, record FROM jobs", "UPDATE jobs SET finished_at = ? WHERE seq = ?",
+                             [](const pb::Job& j) { return j.finished().seconds(); });
 }
 
 const Migration kMigrations[] = {
@@ -283,11 +294,7 @@ int Store::sweep_orphaned_blobs() {
     std::lock_guard<std::mutex> lock(writer_.mutex);
     Stmt m(writer_, "SELECT DISTINCT id FROM meshes");
     while (m.step()) named_meshes.insert(m.column_text(0));
-    Stmt j(writer_, "SELECT record FROM jobs");
-    while (j.step()) {
-      const pb::Job job = parse<pb::Job>(j.column_blob(0));  // named: a range-for keeps only its last temporary
-      for (const pb::Artifact& a : job.result().artifacts()) named_results.insert(a.sha256());
-    }
+    named_results = result_blobs_named(writer_);
   }
   int removed = 0;
   for (const auto& [kind, named] : {std::pair{Blob::kMesh, &named_meshes}, std::pair{Blob::kResult, &named_results}}) {
@@ -525,14 +532,7 @@ int Store::expire_jobs(int64_t finished_before, std::chrono::seconds spare) {
   }
   // A result's bytes go with the last job that names them (content-addressed: two jobs may
   // share them), under the lock that every job update takes.
-  std::set<std::string> named;
-  {
-    Stmt j(writer_, "SELECT record FROM jobs WHERE result_bytes > 0");
-    while (j.step()) {
-      const pb::Job job = parse<pb::Job>(j.column_blob(0));
-      for (const pb::Artifact& a : job.result().artifacts()) named.insert(a.sha256());
-    }
-  }
+  const std::set<std::string> named = result_blobs_named(writer_);
   const auto recent = fs::file_time_type::clock::now() - spare;
   for (const std::string& sha : blobs) {
     if (named.count(sha) || !is_sha256_hex(sha)) continue;

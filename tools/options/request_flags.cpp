@@ -1,21 +1,28 @@
 #include "request_flags.hpp"
 
-#include <map>
+#include <algorithm>
+#include <optional>
+#include <string_view>
+#include <vector>
 
 namespace brenier::options {
 namespace {
 
-// An enum option given by name: the name becomes the enum's number for CLI11 to store, and
-// anything else is refused with the names to choose from.
+// An enum option given by name (the requests' own names and lookup, requests.hpp): the
+// name becomes the enum's number for CLI11 to store, and anything else is refused with the
+// names to choose from.
 template <class E>
-CLI::Validator choices(std::map<std::string, E> names) {
+CLI::Validator choices(std::initializer_list<E> values, const char* (*name)(E), std::optional<E> (*find)(std::string_view)) {
+  std::vector<std::string> names;
+  for (E e : values) names.push_back(name(e));
+  std::sort(names.begin(), names.end());
   std::string list;
-  for (const auto& [name, value] : names) list += (list.empty() ? "" : ", ") + name;
+  for (const std::string& n : names) list += (list.empty() ? "" : ", ") + n;
   return CLI::Validator(
-      [names, list](std::string& in) -> std::string {
-        auto it = names.find(in);
-        if (it == names.end()) return "'" + in + "' is not one of " + list;
-        in = std::to_string(static_cast<int>(it->second));
+      [find, list](std::string& in) -> std::string {
+        const std::optional<E> e = find(in);
+        if (!e) return "'" + in + "' is not one of " + list;
+        in = std::to_string(static_cast<int>(*e));
         return {};
       },
       "{" + list + "}");
@@ -25,7 +32,7 @@ CLI::Validator choices(std::map<std::string, E> names) {
 
 CLI::Option* add_domain(CLI::App* cmd, jobs::Domain& domain, const std::string& help) {
   return cmd->add_option("--domain", domain, help)
-      ->transform(choices<jobs::Domain>({{"disk", jobs::Domain::kDisk}, {"sphere", jobs::Domain::kSphere}}));
+      ->transform(choices({jobs::Domain::kDisk, jobs::Domain::kSphere}, jobs::domain_name, jobs::find_domain));
 }
 
 void add_cut_hole(CLI::App* cmd, bool& cut_hole, int& hole_vertex, const std::string& help) {
@@ -40,8 +47,7 @@ void MapFlags::add_to(CLI::App* cmd) {
   jobs::MapRequest& r = request;
   add_domain(cmd, r.domain, "disk or sphere");
   cmd->add_option("--method", r.method, "conformal (Alg. 1) or area-preserving (Alg. 3)")
-      ->transform(choices<jobs::MapMethod>(
-          {{"conformal", jobs::MapMethod::kConformal}, {"area-preserving", jobs::MapMethod::kAreaPreserving}}));
+      ->transform(choices({jobs::MapMethod::kConformal, jobs::MapMethod::kAreaPreserving}, jobs::map_method_name, jobs::find_map_method));
   cmd->add_option("--markers", r.markers,
                   "input vertex numbers: disk center,boundary (sent to 0 and 1); sphere v0,v1,vinf (sent to 0, 1, infinity)")
       ->delimiter(',');
@@ -69,8 +75,7 @@ jobs::MapRequest MapFlags::resolve() const {
 void ShapeFlags::add_to(CLI::App* cmd) {
   jobs::ShapeRequest& r = request;
   cmd->add_option("--method", r.method, "wasserstein (exact, Alg. 5) or omt-linear (Def. 2.24 as an embedding)")
-      ->transform(choices<distance::Method>(
-          {{"wasserstein", distance::Method::kWasserstein}, {"omt-linear", distance::Method::kOmtLinear}}));
+      ->transform(choices({distance::Method::kWasserstein, distance::Method::kOmtLinear}, distance::method_name, distance::find_method));
   add_domain(cmd, r.domain,
              "disk (topological disks; closed genus-0 surfaces with --cut-hole) or sphere (closed genus-0 "
              "surfaces; wasserstein with the squared chordal cost)");
