@@ -17,6 +17,8 @@ PACKAGES=(
   libspdlog-dev libfmt-dev libcli11-dev nlohmann-json3-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libsqlite3-dev libssl-dev libcairo2-dev
+  # The PostgreSQL store (brenierd --database), and the server its tests start (initdb, pg_ctl).
+  libpq-dev postgresql-15
   libgtest-dev libgmock-dev googletest libbenchmark-dev
   python3
   # Tests: POT's exact EMD, the independent check of our Wasserstein distances.

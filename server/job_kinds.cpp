@@ -1,4 +1,5 @@
 #include "job_kinds.hpp"
+#include "test_hooks.hpp"
 
 #include <google/protobuf/util/time_util.h>
 
@@ -128,11 +129,13 @@ void JobContext::check() const {
 }
 
 mesh::CleanMesh JobContext::load(const std::string& id, pb::Mesh* record) {
-  auto m = store.get_mesh(tenant, id);
-  if (!m || !store.has_blob(Store::Blob::kMesh, id)) invalid("mesh " + id + " was deleted");
+  const auto m = store.get_mesh(tenant, id);
+  test_hooks::at(test_hooks::Point::kLoadAfterRow);
+  const auto bytes = m ? store.read_blob(Store::Blob::kMesh, id) : std::nullopt;
+  if (!bytes) invalid("mesh " + id + " was deleted");
   if (record) *record = *m;
   const auto format = mesh::parse_format(m->format());
-  return mesh::clean(mesh::read_soup(read_whole(store.blob_path(Store::Blob::kMesh, id)), *format));
+  return mesh::clean(mesh::read_soup(*bytes, *format));
 }
 
 namespace {

@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <atomic>
 #include <thread>
 #include <cerrno>
 #include <fcntl.h>
@@ -83,6 +84,7 @@ int wait_stop_signal() {
 struct Flags {
   std::string listen = "127.0.0.1:50051";
   std::string data = "brenier-data";
+  std::string database;  // empty: SQLite in --data
   int workers = 0, queue = 64;
   int64_t max_upload_mb = 512, max_vertices = 5'000'000;
   int max_watches = 128, max_uploads = 32;
@@ -115,8 +117,11 @@ int serve(const Flags& f) {
     brenier::invalid("--tls-client-ca needs --tls-cert and --tls-key");
   }
 
-  brenier::server::Store store(f.data);
-  if (const int swept = store.sweep_orphaned_blobs()) spdlog::info("removed {} orphaned blobs", swept);
+  const std::unique_ptr<brenier::server::Store> opened = brenier::server::open_store(f.data, f.database);
+  brenier::server::Store& store = *opened;
+  // Replicas share --data: another one may be between a blob and its row right now.
+  const auto orphan_age = f.database.empty() ? std::chrono::seconds(0) : std::chrono::hours(1);
+  if (const int swept = store.sweep_orphaned_blobs(orphan_age)) spdlog::info("removed {} orphaned blobs", swept);
   brenier::server::ManagerOptions mo;
   mo.workers = f.workers;
   mo.queue = f.queue;
@@ -129,6 +134,10 @@ int serve(const Flags& f) {
   brenier::server::Manager manager(store, mo);
   brenier::server::Service service(manager, std::move(auth),
                                   {.max_watches_per_tenant = f.max_watches, .max_uploads_per_tenant = f.max_uploads});
+
+  // The jobs an earlier run left are queued before the port opens: recovered after, a job
+  // submitted in between (its row already QUEUED) was queued twice and ran twice.
+  manager.recover();
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
@@ -146,18 +155,35 @@ int serve(const Flags& f) {
   if (!server || port == 0) brenier::invalid("cannot listen on " + f.listen);
   server->GetHealthCheckService()->SetServingStatus(true);
   const std::string host = f.listen.substr(0, f.listen.rfind(':'));
-  spdlog::info("brenierd listening on {}:{} (data {}, {} workers, queue {}, tokens {}, TLS {})", host, port, f.data,
+  spdlog::info("brenierd listening on {}:{} (data {}, database {} {}, {} workers, queue {}, tokens {}, TLS {})", host,
+               port, f.data, store.backend(), brenier::server::elide_password(f.database),
                manager.options().workers, f.queue, f.tokens.empty() ? "off" : "on", f.tls_cert.empty() ? "off" : "on");
   if (!f.port_file.empty()) {
     const std::string tmp = f.port_file + ".tmp";
     std::ofstream(tmp) << port << "\n";
     std::rename(tmp.c_str(), f.port_file.c_str());
   }
-  manager.recover();
+  // The health service follows the database: NOT_SERVING while it is away (calls meanwhile
+  // answer UNAVAILABLE), SERVING again when it is back.
+  std::atomic<bool> stopping{false};
+  std::thread health([&] {
+    bool serving = true;
+    while (!stopping) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(500));
+      const bool now = store.healthy();
+      if (now != serving && !stopping) {
+        server->GetHealthCheckService()->SetServingStatus(now);
+        if (now) spdlog::info("the database answers again: serving");
+        else spdlog::error("the database does not answer: NOT_SERVING until it does");
+        serving = now;
+      }
+    }
+  });
 
   std::thread waiter([&] {
     const int sig = wait_stop_signal();
     spdlog::info("signal {}: shutting down (grace {} s)", sig, f.grace);
+    stopping = true;
     server->GetHealthCheckService()->SetServingStatus(false);
     manager.begin_shutdown();
     manager.finish_shutdown(f.grace);
@@ -165,6 +191,7 @@ int serve(const Flags& f) {
   });
   server->Wait();
   waiter.join();
+  health.join();
   spdlog::info("brenierd stopped");
   return 0;
 }
@@ -179,7 +206,10 @@ int main(int argc, char** argv) {
   Flags f;
   app.set_config("--config", "", "read flags from a TOML/INI file (keys: the long flag names)");
   app.add_option("--listen", f.listen, "HOST:PORT to listen on (port 0: any free port)");
-  app.add_option("--data", f.data, "data directory (SQLite metadata and blobs)");
+  app.add_option("--data", f.data, "data directory (blobs; the SQLite database unless --database)");
+  app.add_option("--database", f.database,
+                 "postgresql://USER[:PASS]@HOST:PORT/DB: keep the metadata in PostgreSQL (replicas share it and --data)")
+      ->envname("BRENIER_DATABASE");
   app.add_option("--workers", f.workers, "worker threads (default: the number of cores)")->check(CLI::Range(0, 1024));
   app.add_option("--queue", f.queue, "queued jobs at most before RESOURCE_EXHAUSTED")->check(CLI::Range(1, 1000000));
   app.add_option("--max-upload-mb", f.max_upload_mb, "largest upload in MiB")->check(CLI::Range(1, 1 << 20));

@@ -13,6 +13,7 @@ enum class Point {
   kMeshBeforeRow,       // Store::put_mesh_with_blob: the blob is in place, the row not yet
   kSubmitAfterInsert,   // Manager::submit: the job row exists, not yet queued
   kRunStart,            // Manager::run: a worker took a job, before it starts it
+  kLoadAfterRow,        // JobContext::load: the mesh row was read, its bytes not yet
   kCount
 };
 

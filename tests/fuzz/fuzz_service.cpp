@@ -43,7 +43,7 @@ struct InProcess {
     char tmpl[] = "/tmp/brenier-fuzz-service-XXXXXX";
     if (!mkdtemp(tmpl)) std::abort();
     dir = tmpl;
-    store = std::make_unique<Store>(dir);
+    store = open_store(dir);
     manager = std::make_unique<Manager>(*store, ManagerOptions{.workers = 2, .queue = 8, .max_upload_bytes = 1 << 20,
                                                                .max_vertices = 2000, .max_matrix_meshes = 6});
     service = std::make_unique<Service>(*manager, Auth());

@@ -1,5 +1,5 @@
 // A brenierd process for the service tests: started on 127.0.0.1 with an ephemeral port
-// and its own data directory, stopped with SIGTERM (or killed with SIGKILL) on request.
+// and its own data directory (and its own PostgreSQL database in the suites' "pg." variants), stopped with SIGTERM (or killed with SIGKILL) on request.
 #pragma once
 
 #include <signal.h>
@@ -16,6 +16,7 @@
 
 #include "client.hpp"
 #include "health.grpc.pb.h"
+#include "test_database.hpp"
 
 namespace brenier::test {
 
@@ -38,6 +39,7 @@ class ServerProcess {
     std::filesystem::remove(port_file);
     std::vector<std::string> args = {BRENIERD, "--listen", "127.0.0.1:0", "--data", data_, "--port-file", port_file,
                                      "--log-level", "warn"};
+    if (const std::string db = test_database(data_); !db.empty()) args.insert(args.end(), {"--database", db});
     args.insert(args.end(), flags.begin(), flags.end());
     pid_ = ::fork();
     if (pid_ == 0) {

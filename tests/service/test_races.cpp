@@ -19,6 +19,7 @@
 #include "mesh/shapes.hpp"
 #include "service.hpp"
 #include "store.hpp"
+#include "test_database.hpp"
 #include "test_hooks.hpp"
 
 namespace fs = std::filesystem;
@@ -31,7 +32,8 @@ namespace {
 struct Fixture : ::testing::Test {
   std::string dir;
   void SetUp() override {
-    dir = std::string(BRENIER_TEST_WORK) + "/" + ::testing::UnitTest::GetInstance()->current_test_info()->name();
+    dir = std::string(BRENIER_TEST_WORK) + "/" + ::testing::UnitTest::GetInstance()->current_test_info()->name() +
+          (std::getenv("BRENIER_TEST_PG") ? "-pg" : "");  // the variants may run at once
     fs::remove_all(dir);
     fs::create_directories(dir);
   }
@@ -68,7 +70,8 @@ pb::Job wait_terminal(Manager& m, const std::string& tenant, const std::string& 
 // in between was reported with its stale RUNNING state and the stream ended without the
 // terminal event. The hook waits, between the two lookups, until the job has finished.
 TEST_F(Fixture, WatchOfAJobFinishingMeanwhileEndsWithItsTerminalEvent) {
-  Store store(dir);
+  const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
+  Store& store = *owned;
   Manager manager(store, {.workers = 1, .queue = 4});
   Service service(manager, Auth());
   grpc::ServerBuilder builder;
@@ -112,7 +115,8 @@ TEST_F(Fixture, WatchOfAJobFinishingMeanwhileEndsWithItsTerminalEvent) {
 // removed it, then the upload inserted its row: a mesh whose bytes were gone. The hook runs
 // the delete in the window and gives it time to finish there.
 TEST_F(Fixture, UploadRacingADeleteNeverLeavesAMeshWithoutItsBytes) {
-  Store store(dir);
+  const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
+  Store& store = *owned;
   Manager manager(store, {.workers = 1, .queue = 4});
   const std::string bytes = disk_bytes(5);
   const pb::Mesh a = upload(manager, "alice", bytes);
@@ -135,11 +139,30 @@ TEST_F(Fixture, UploadRacingADeleteNeverLeavesAMeshWithoutItsBytes) {
   EXPECT_EQ(wait_terminal(manager, "bob", job.id(), 60s).state(), pb::SUCCEEDED);
 }
 
+// Found by fuzz_service under CI: a job read its mesh's row, the mesh was deleted, and the
+// job's read of the bytes then failed with INTERNAL. A deleted mesh is the client's doing: the
+// job fails with INVALID_ARGUMENT saying so. The hook deletes between the row and the bytes.
+TEST_F(Fixture, AMeshDeletedWhileAJobLoadsItFailsTheJobAsDeleted) {
+  const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
+  Store& store = *owned;
+  Manager manager(store, {.workers = 1, .queue = 4});
+  const pb::Mesh mesh = upload(manager, "alice", disk_bytes(5));
+  bool deleted = false;
+  test_hooks::arm(test_hooks::Point::kLoadAfterRow, [&] { deleted = store.delete_mesh("alice", mesh.id()); });
+  const pb::Job job = manager.submit("alice", map_request(mesh.id()));
+  const pb::Job done = wait_terminal(manager, "alice", job.id(), 60s);
+  ASSERT_TRUE(deleted) << "the hook did not run";
+  EXPECT_EQ(done.state(), pb::FAILED);
+  EXPECT_EQ(done.error().code(), static_cast<int>(grpc::StatusCode::INVALID_ARGUMENT)) << done.error().message();
+  EXPECT_NE(done.error().message().find("was deleted"), std::string::npos) << done.error().message();
+}
+
 // Race 3. With the queue full, a submission inserted its row, found no place and deleted the
 // row: a resubmission with the same request_id in between was handed that job, which then
 // vanished. The hook (after the row exists) makes the resubmission there.
 TEST_F(Fixture, ASubmissionRefusedByAFullQueueLeavesNoJobBehind) {
-  Store store(dir);
+  const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
+  Store& store = *owned;
   Manager manager(store, {.workers = 1, .queue = 1});
   const pb::Mesh mesh = upload(manager, "", disk_bytes(5));
   // The worker holds the first job until released; the second fills the queue.
@@ -195,7 +218,8 @@ TEST_F(Fixture, ASubmissionRefusedByAFullQueueLeavesNoJobBehind) {
 TEST_F(Fixture, TheStartSweepRemovesOnlyBlobsNothingNames) {
   std::string kept_mesh, kept_result, orphan_mesh, orphan_result;
   {
-    Store store(dir);
+    const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
+  Store& store = *owned;
     Manager manager(store, {.workers = 1, .queue = 4});
     kept_mesh = upload(manager, "default", disk_bytes(4)).id();
     const pb::Job job = manager.submit("default", map_request(kept_mesh));
@@ -206,7 +230,8 @@ TEST_F(Fixture, TheStartSweepRemovesOnlyBlobsNothingNames) {
     orphan_mesh = store.put_blob(Store::Blob::kMesh, disk_bytes(7));
     orphan_result = store.put_blob(Store::Blob::kResult, "a report of a run that was run again");
   }
-  Store store(dir);
+  const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
+  Store& store = *owned;
   EXPECT_EQ(store.sweep_orphaned_blobs(), 2);
   EXPECT_TRUE(store.has_blob(Store::Blob::kMesh, kept_mesh));
   EXPECT_TRUE(store.has_blob(Store::Blob::kResult, kept_result));

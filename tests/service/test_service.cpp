@@ -10,7 +10,11 @@
 #include <set>
 #include <sstream>
 #include <thread>
+#include <arpa/inet.h>
+#include <libpq-fe.h>
+#include <netinet/in.h>
 #include <sqlite3.h>
+#include <sys/socket.h>
 #include <sys/wait.h>
 
 #include "common/error.hpp"
@@ -562,51 +566,108 @@ TEST(Service, KillNineMidWorkThenARestartLosesNothing) {
 
 // The schema is versioned: a database from before versions were kept is migrated and keeps
 // its rows; one written by a newer brenierd is refused at start with one line saying so.
+// brenierd started on a database and data directory; its exit status and what it wrote to stderr.
+std::pair<int, std::string> run_brenierd(const std::string& data, const std::string& extra = "") {
+  const std::string out = data + "-stderr.txt";
+  const std::string db = test_database(data);
+  const std::string cmd = std::string(BRENIERD) + " --listen 127.0.0.1:0 --data " + data +
+                          (db.empty() ? "" : " --database " + db) + " " + extra + " 2> " + out;
+  const int rc = std::system(cmd.c_str());
+  std::ifstream err(out);
+  return {WIFEXITED(rc) ? WEXITSTATUS(rc) : -1, std::string((std::istreambuf_iterator<char>(err)), {})};
+}
+
+// One statement on the test's database, SQLite's file or PostgreSQL's, and the first column
+// of its first row (-1 without one).
+int64_t sql(const std::string& data, const std::string& statement) {
+  if (const std::string db = test_database(data); !db.empty()) {
+    PGconn* c = PQconnectdb(db.c_str());
+    EXPECT_EQ(PQstatus(c), CONNECTION_OK) << PQerrorMessage(c);
+    PGresult* r = PQexec(c, statement.c_str());
+    EXPECT_TRUE(PQresultStatus(r) == PGRES_TUPLES_OK || PQresultStatus(r) == PGRES_COMMAND_OK)
+        << PQresultErrorMessage(r);
+    const int64_t v = PQntuples(r) > 0 ? std::strtoll(PQgetvalue(r, 0, 0), nullptr, 10) : -1;
+    PQclear(r);
+    PQfinish(c);
+    return v;
+  }
+  sqlite3* db = nullptr;
+  EXPECT_EQ(sqlite3_open((data + "/brenier.db").c_str(), &db), SQLITE_OK);
+  sqlite3_stmt* st = nullptr;
+  EXPECT_EQ(sqlite3_prepare_v2(db, statement.c_str(), -1, &st, nullptr), SQLITE_OK) << sqlite3_errmsg(db);
+  const int rc = sqlite3_step(st);
+  const int64_t v = rc == SQLITE_ROW ? sqlite3_column_int64(st, 0) : -1;
+  EXPECT_TRUE(rc == SQLITE_ROW || rc == SQLITE_DONE) << sqlite3_errmsg(db);
+  sqlite3_finalize(st);
+  sqlite3_close(db);
+  return v;
+}
+
 TEST(Service, SchemaVersionsAreMigratedOrRefused) {
   const std::string data = temp_dir("svc-schema");
+  const bool pg = !test_database(data).empty();
   std::string id;
   {
     ServerProcess server(data);
     id = server.client().upload_bytes(hemisphere(), "hemi").id();
   }
-  // One statement on the database, and the first column of its first row (or -1).
-  auto sql = [&](const std::string& statement) {
-    sqlite3* db = nullptr;
-    EXPECT_EQ(sqlite3_open((data + "/brenier.db").c_str(), &db), SQLITE_OK);
-    sqlite3_stmt* st = nullptr;
-    EXPECT_EQ(sqlite3_prepare_v2(db, statement.c_str(), -1, &st, nullptr), SQLITE_OK) << sqlite3_errmsg(db);
-    const int rc = sqlite3_step(st);
-    const int64_t v = rc == SQLITE_ROW ? sqlite3_column_int64(st, 0) : -1;
-    EXPECT_TRUE(rc == SQLITE_ROW || rc == SQLITE_DONE) << sqlite3_errmsg(db);
-    sqlite3_finalize(st);
-    sqlite3_close(db);
-    return v;
-  };
-  const int64_t current = sql("PRAGMA user_version");
-  EXPECT_GE(current, 2);
-  // As a database of before the versions: version 1's tables, user_version 0.
-  sql("ALTER TABLE meshes DROP COLUMN size_bytes");
-  sql("ALTER TABLE jobs DROP COLUMN result_bytes");
-  sql("DROP INDEX jobs_finished");
-  sql("ALTER TABLE jobs DROP COLUMN finished_at");
-  sql("PRAGMA user_version = 0");
+  const std::string version = pg ? "SELECT version FROM brenier_schema" : "PRAGMA user_version";
+  const int64_t current = sql(data, version);
+  EXPECT_GE(current, pg ? 1 : 3);
+  if (!pg) {  // PostgreSQL's schema began at SQLite's version 3: no older one to migrate from
+    // As a database of before the versions: version 1's tables, user_version 0.
+    sql(data, "ALTER TABLE meshes DROP COLUMN size_bytes");
+    sql(data, "ALTER TABLE jobs DROP COLUMN result_bytes");
+    sql(data, "DROP INDEX jobs_finished");
+    sql(data, "ALTER TABLE jobs DROP COLUMN finished_at");
+    sql(data, "PRAGMA user_version = 0");
+  }
   {
     ServerProcess server(data);
     EXPECT_EQ(server.client().get_mesh(id).name(), "hemi");
   }
-  EXPECT_EQ(sql("PRAGMA user_version"), current);
+  EXPECT_EQ(sql(data, version), current);
   // The sizes the storage quota counts were filled in from the records.
-  EXPECT_EQ(sql("SELECT size_bytes FROM meshes"), static_cast<int64_t>(hemisphere().size()));
-  sql("PRAGMA user_version = " + std::to_string(current + 7));
-  const std::string out = data + "-refused.txt";
-  const int rc = std::system((std::string(BRENIERD) + " --listen 127.0.0.1:0 --data " + data + " 2> " + out).c_str());
-  EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << rc;
-  std::ifstream err(out);
-  const std::string text((std::istreambuf_iterator<char>(err)), {});
+  EXPECT_EQ(sql(data, "SELECT size_bytes FROM meshes"), static_cast<int64_t>(hemisphere().size()));
+  sql(data, pg ? "UPDATE brenier_schema SET version = " + std::to_string(current + 7)
+               : "PRAGMA user_version = " + std::to_string(current + 7));
+  const auto [rc, text] = run_brenierd(data);
+  EXPECT_EQ(rc, 2);
   EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 1) << text;
   EXPECT_NE(text.find("has schema version " + std::to_string(current + 7) + ", written by a newer brenierd"),
             std::string::npos)
       << text;
+}
+
+// PostgreSQL that cannot be reached at start: exit 2 and one line naming the URL, without
+// its password. (On either suite: it needs no running PostgreSQL.)
+TEST(Service, AnUnreachableDatabaseStopsTheStartWithOneLine) {
+  const std::string data = temp_dir("svc-nodb");
+  // A port nothing listens on: bound, then closed.
+  const int port = [] {
+    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    ::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
+    socklen_t n = sizeof a;
+    ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &n);
+    ::close(fd);
+    return static_cast<int>(ntohs(a.sin_port));
+  }();
+  const std::string url = "postgresql://alice:s3cret-pw@127.0.0.1:" + std::to_string(port) + "/brenier";
+  const std::string out = data + "-stderr.txt";
+  const int rc = std::system((std::string(BRENIERD) + " --listen 127.0.0.1:0 --data " + data + " --database '" + url +
+                              "' 2> " + out)
+                                 .c_str());
+  std::ifstream err(out);
+  const std::string text((std::istreambuf_iterator<char>(err)), {});
+  EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << rc << " " << text;
+  EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 1) << text;
+  EXPECT_NE(text.find("postgresql://alice:***@127.0.0.1:" + std::to_string(port) + "/brenier"), std::string::npos)
+      << text;
+  EXPECT_EQ(text.find("s3cret"), std::string::npos) << text;
+  EXPECT_NE(text.find("unavailable"), std::string::npos) << text;
 }
 
 // Retention: a finished job and its results go once the retention period has passed; the
