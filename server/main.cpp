@@ -91,6 +91,7 @@ struct Flags {
   int max_jobs_per_tenant = 0;
   int64_t max_storage_mb_per_tenant = 0, min_free_mb = 256;
   double retention_days = 30;
+  double lease_seconds = 30;
   std::string tokens, tls_cert, tls_key, tls_client_ca, port_file;
   double grace = 30;
   std::string log_level = "info";
@@ -117,7 +118,7 @@ int serve(const Flags& f) {
     brenier::invalid("--tls-client-ca needs --tls-cert and --tls-key");
   }
 
-  const std::unique_ptr<brenier::server::Store> opened = brenier::server::open_store(f.data, f.database);
+  const std::unique_ptr<brenier::server::Store> opened = brenier::server::open_store(f.data, f.database, f.lease_seconds);
   brenier::server::Store& store = *opened;
   // Replicas share --data: another one may be between a blob and its row right now.
   const auto orphan_age = f.database.empty() ? std::chrono::seconds(0) : std::chrono::hours(1);
@@ -131,6 +132,7 @@ int serve(const Flags& f) {
   mo.max_storage_bytes_per_tenant = f.max_storage_mb_per_tenant << 20;
   mo.min_free_bytes = f.min_free_mb << 20;
   mo.retention_seconds = f.retention_days * 86400;
+  mo.lease_seconds = f.lease_seconds;
   brenier::server::Manager manager(store, mo);
   brenier::server::Service service(manager, std::move(auth),
                                   {.max_watches_per_tenant = f.max_watches, .max_uploads_per_tenant = f.max_uploads});
@@ -222,6 +224,9 @@ int main(int argc, char** argv) {
   app.add_option("--retention-days", f.retention_days,
                  "finished jobs and their results are removed this long after they finish (0: kept)")
       ->check(CLI::Range(0.0, 36500.0));
+  app.add_option("--lease-seconds", f.lease_seconds,
+                 "with --database: a replica's claim on a job lasts this long unless renewed (renewed every third)")
+      ->check(CLI::Range(0.5, 3600.0));
   app.add_option("--min-free-mb", f.min_free_mb, "uploads that would leave less free disk under --data are refused")
       ->check(CLI::Range(int64_t{0}, int64_t{1} << 40));
   app.add_option("--max-watches", f.max_watches, "open WatchJob streams per tenant at most")->check(CLI::Range(1, 100000));

@@ -65,6 +65,7 @@ Manager::Manager(Store& store, const ManagerOptions& options) : store_(store), o
   if (options_.queue < 1) invalid("the queue must hold at least one job");
   scheduler_ = std::make_unique<Scheduler>(options_.workers, options_.queue, [this](const std::string& id) { run(id); });
   if (options_.retention_seconds > 0) expirer_ = std::thread([this] { expire_loop(); });
+  if (store_.shared()) leaser_ = std::thread([this] { lease_loop(); });
 }
 
 // Every quarter of the retention period (between a second and an hour), the jobs finished
@@ -72,8 +73,8 @@ Manager::Manager(Store& store, const ManagerOptions& options) : store_(store), o
 void Manager::expire_loop() {
   const double period = std::clamp(options_.retention_seconds / 4, 1.0, 3600.0);
   const auto spare = std::chrono::seconds(static_cast<int64_t>(std::min(600.0, options_.retention_seconds / 2)));
-  std::unique_lock<std::mutex> lock(expire_mutex_);
-  while (!expire_stop_) {
+  std::unique_lock<std::mutex> lock(background_mutex_);
+  while (!background_stop_) {
     lock.unlock();
     try {
       const int64_t now = TimeUtil::GetCurrentTime().seconds();
@@ -83,17 +84,18 @@ void Manager::expire_loop() {
       spdlog::warn("expiring finished jobs failed: {}", e.what());
     }
     lock.lock();
-    expire_wake_.wait_for(lock, std::chrono::duration<double>(period), [this] { return expire_stop_; });
+    background_wake_.wait_for(lock, std::chrono::duration<double>(period), [this] { return background_stop_; });
   }
 }
 
 Manager::~Manager() {
   {
-    std::lock_guard<std::mutex> lock(expire_mutex_);
-    expire_stop_ = true;
+    std::lock_guard<std::mutex> lock(background_mutex_);
+    background_stop_ = true;
   }
-  expire_wake_.notify_all();
+  background_wake_.notify_all();
   if (expirer_.joinable()) expirer_.join();
+  if (leaser_.joinable()) leaser_.join();
   if (scheduler_) {
     scheduler_->stop_taking();
     {
@@ -105,23 +107,11 @@ Manager::~Manager() {
 }
 
 void Manager::recover() {
-  for (const std::string& id : store_.unfinished_jobs()) {
-    auto job = store_.get_job_any(id);
-    if (!job) continue;
-    if (job->state() == pb::RUNNING) {
-      job->set_state(pb::QUEUED);
-      job->set_stage("requeued after a restart");
-      store_.update_job(*job);
-    }
-    auto l = std::make_shared<LiveJob>();
-    l->job = *job;
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      live_[id] = l;
-    }
-    scheduler_->enqueue(id);
-    spdlog::info("job {} requeued ({} attempts so far)", id, job->attempts());
+  if (store_.shared()) {  // replicas: the jobs whose lease has run out, as the lease thread claims them
+    claim_expired();
+    return;
   }
+  for (const std::string& id : store_.unfinished_jobs()) adopt(id, "requeued after a restart");
 }
 
 void Manager::check_room(const std::string& tenant, int64_t bytes) {
@@ -277,7 +267,22 @@ std::shared_ptr<LiveJob> Manager::live(const std::string& tenant, const std::str
 pb::Job Manager::cancel(const std::string& tenant, const std::string& id) {
   pb::Job current;
   std::shared_ptr<LiveJob> l = live(tenant, id, current);
-  if (!l) return current;  // finished: unchanged
+  if (!l) {
+    // Finished: unchanged. Held by another replica: it cancels the job within a second.
+    if (!is_terminal(current.state()) && store_.shared()) {
+      store_.request_cancel(id);
+      spdlog::info("job {} cancel requested (it is held by another replica)", id);
+    }
+    return current;
+  }
+  cancel_live(l, current);
+  spdlog::info("job {} cancel requested", id);
+  return current;
+}
+
+// A queued job is cancelled at once (its place in the queue freed); a running one is told to
+// stop and ends CANCELLED when its loops next look.
+void Manager::cancel_live(const std::shared_ptr<LiveJob>& l, pb::Job& current) {
   bool cancelled_now = false;
   {
     std::lock_guard<std::mutex> lock(l->mutex);
@@ -294,11 +299,9 @@ pb::Job Manager::cancel(const std::string& tenant, const std::string& id) {
     current = l->job;
   }
   if (cancelled_now) {
-    scheduler_->remove(id);  // its place in the queue is free at once
+    scheduler_->remove(current.id());
     finish(l, current);
   }
-  spdlog::info("job {} cancel requested", id);
-  return current;
 }
 
 void Manager::publish(LiveJob& l, const pb::JobEvent& e) {
@@ -338,6 +341,154 @@ void Manager::finish_shutdown(double grace_seconds) {
     for (auto& [id, l] : live_) l->interrupted = true;
   }
   scheduler_->join();
+  // Jobs still queued here go to the other replicas at once rather than when the lease ends.
+  for (const auto& [id, l] : live_jobs()) {
+    try {
+      store_.release(id);
+    } catch (const std::exception& e) {
+      spdlog::warn("job {} keeps its lease until it runs out: {}", id, e.what());
+    }
+  }
+}
+
+
+// ---- replicas ----
+
+std::vector<std::pair<std::string, std::shared_ptr<LiveJob>>> Manager::live_jobs() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return {live_.begin(), live_.end()};
+}
+
+// Every tick (a tenth of the lease, at most a second): cancellations asked elsewhere and the
+// running jobs' progress; every third of the lease: renewals and claims.
+void Manager::lease_loop() {
+  const double tick = std::clamp(options_.lease_seconds / 10, 0.05, 1.0);
+  const int renew_every = std::max(1, static_cast<int>(options_.lease_seconds / 3 / tick));
+  std::map<std::string, std::string> written;
+  std::string last_error;
+  std::unique_lock<std::mutex> lock(background_mutex_);
+  for (int n = 0; !background_stop_; ++n) {
+    lock.unlock();
+    try {
+      apply_cancels();
+      write_progress(written);
+      if (n % renew_every == 0) {
+        renew_leases();
+        if (!shutting_down_) claim_expired();
+      }
+      if (!last_error.empty()) spdlog::info("leases: the database answers again");
+      last_error.clear();
+    } catch (const std::exception& e) {
+      if (e.what() != last_error) spdlog::warn("leases: {}", e.what());
+      last_error = e.what();
+    }
+    lock.lock();
+    background_wake_.wait_for(lock, std::chrono::duration<double>(tick), [this] { return background_stop_; });
+  }
+}
+
+void Manager::apply_cancels() {
+  for (const std::string& id : store_.cancels_requested()) {
+    std::shared_ptr<LiveJob> l = find_live(id);
+    if (!l || l->cancel) continue;
+    pb::Job current;
+    cancel_live(l, current);
+    spdlog::info("job {} cancelled through another replica", id);
+  }
+}
+
+// Running jobs whose stage or fraction moved since the last tick, for watchers elsewhere.
+void Manager::write_progress(std::map<std::string, std::string>& written) {
+  std::map<std::string, std::string> now;
+  for (const auto& [id, l] : live_jobs()) {
+    pb::Job j;
+    {
+      std::lock_guard<std::mutex> lock(l->mutex);
+      if (l->terminal || l->job.state() != pb::RUNNING) continue;
+      j = l->job;
+    }
+    std::string mark = j.stage() + " " + std::to_string(j.fraction());
+    if (written[j.id()] != mark) store_.update_progress(j);
+    now[j.id()] = std::move(mark);
+  }
+  written.swap(now);
+}
+
+// A job whose lease could not be renewed is held by another replica now (this one lost the
+// database for longer than the lease): it stops here, unwritten.
+void Manager::renew_leases() {
+  std::vector<std::string> ids;
+  for (const auto& [id, l] : live_jobs()) ids.push_back(id);
+  const std::vector<std::string> kept_list = store_.renew_leases(ids);
+  const std::set<std::string> kept(kept_list.begin(), kept_list.end());
+  for (const std::string& id : ids) {
+    if (kept.count(id)) continue;
+    std::shared_ptr<LiveJob> l = find_live(id);
+    const auto stored = store_.get_job_any(id);
+    if (!l || !stored || is_terminal(stored->state())) continue;  // it finished meanwhile
+    detach(id, l, "its lease ran out and another replica holds it");
+  }
+}
+
+// Takes the jobs whose replica stopped renewing them, at most as many as the queue has free
+// places (none held meanwhile: a submission racing a claim finds the queue as it is; one that
+// takes a place between the count and the claim makes the queue one longer for a moment).
+void Manager::claim_expired() {
+  const int room = std::min(8, scheduler_->free_places());
+  for (const std::string& id : store_.claim_expired(room)) adopt(id, "requeued: the replica running it stopped");
+}
+
+// A job queued here that an earlier run (or another replica) left unfinished; a running one
+// runs again from the start (a matrix from its finished tiles).
+void Manager::adopt(const std::string& id, const std::string& why) {
+  auto job = store_.get_job_any(id);
+  if (!job || is_terminal(job->state())) return;
+  if (job->state() == pb::RUNNING) {
+    job->set_state(pb::QUEUED);
+    job->set_stage(why);
+    store_.update_job(*job);
+  }
+  auto l = std::make_shared<LiveJob>();
+  l->job = *job;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    live_[id] = l;
+  }
+  scheduler_->enqueue(id);
+  spdlog::info("job {} queued: {} ({} attempts so far)", id, why, job->attempts());
+}
+
+void Manager::detach(const std::string& id, const std::shared_ptr<LiveJob>& l, const std::string& why) {
+  l->interrupted = true;  // a run stops at its next check
+  l->detached = true;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    live_.erase(id);
+  }
+  l->changed.notify_all();
+  scheduler_->remove(id);
+  spdlog::warn("job {} left this replica: {}", id, why);
+}
+
+void Manager::follow(const std::string& tenant, const std::string& id,
+                     const std::function<bool(const pb::JobEvent&)>& write, const std::function<bool()>& stop) {
+  pb::Job last;
+  auto written_at = std::chrono::steady_clock::now();
+  for (bool first = true;; first = false) {
+    const pb::Job j = get(tenant, id);
+    const auto now = std::chrono::steady_clock::now();
+    const bool moved = first || j.state() != last.state() || j.stage() != last.stage() || j.fraction() != last.fraction();
+    if (moved || now - written_at >= std::chrono::milliseconds(1500)) {
+      if (!write(state_event(j))) return;
+      written_at = now;
+    }
+    if (is_terminal(j.state())) return;
+    last = j;
+    for (int k = 0; k < 5; ++k) {
+      if (stop()) return;
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+  }
 }
 
 void Manager::run(const std::string& id) {
@@ -346,7 +497,7 @@ void Manager::run(const std::string& id) {
   if (!l) return;  // cancelled while queued
   std::string tenant;
   pb::Job job;
-  {
+  try {
     std::lock_guard<std::mutex> lock(l->mutex);
     if (l->job.state() != pb::QUEUED) return;
     auto stored = store_.get_job_any(id, &tenant);
@@ -359,6 +510,9 @@ void Manager::run(const std::string& id) {
     *job.mutable_started() = TimeUtil::GetCurrentTime();
     store_.update_job(job);
     l->job = job;
+  } catch (const Error& e) {  // the database is away, or another replica holds the job now
+    detach(id, l, e.what());
+    return;
   }
   {
     std::lock_guard<std::mutex> lock(running_mutex_);
@@ -390,40 +544,63 @@ void Manager::run(const std::string& id) {
   } catch (const std::exception& e) {
     error = Error(ErrorCode::kInternal, std::string("internal error: ") + e.what());
   }
+  if (l->detached) {
+    spdlog::warn("job {} stopped here after {:.3f} s: another replica holds it", id,
+                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    return;
+  }
   {
     std::lock_guard<std::mutex> lock(l->mutex);
     job = l->job;
   }
+  try {
+    job = record_outcome(l, job, error, result, requeue);
+  } catch (const Error& e) {
+    // Its state could not be written: it is left to the lease (on a shared store another
+    // replica, or this one, runs it again once the lease runs out) or to the next start.
+    detach(id, l, std::string("its outcome could not be written: ") + e.what());
+    return;
+  }
+  if (!requeue)
+    spdlog::info("job {} {} in {:.3f} s{}{}", id, pb::JobState_Name(job.state()),
+                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), error ? ": " : "",
+                 error ? error->what() : "");
+}
+
+// The job's end as the store and its watchers get it: requeued (a shutdown interrupted it),
+// or succeeded, cancelled or failed.
+pb::Job Manager::record_outcome(const std::shared_ptr<LiveJob>& l, pb::Job job, const std::optional<Error>& error,
+                                const pb::JobResult& result, bool requeue) {
   if (requeue) {
-    // Shutting down: the job stays queued in the store and runs again at the next start.
+    // Shutting down: the job stays queued in the store and runs again at the next start (or,
+    // on a shared store, at once on another replica: the lease is let go).
     job.set_state(pb::QUEUED);
     job.set_stage("interrupted by a shutdown; runs again at the next start");
     store_.update_job(job);
-    spdlog::warn("job {} interrupted by the shutdown; requeued", id);
-  } else {
-    if (!error) {
-      job.set_state(pb::SUCCEEDED);
-      job.set_stage("done");
-      job.set_fraction(1);
-      *job.mutable_result() = result;
-    } else if (error->code() == ErrorCode::kCancelled) {
-      job.set_state(pb::CANCELLED);
-      job.set_stage("cancelled");
-      job.mutable_error()->set_code(static_cast<int>(grpc::StatusCode::CANCELLED));
-      job.mutable_error()->set_message("cancelled");
-    } else {
-      job.set_state(pb::FAILED);
-      job.set_stage("failed");
-      job.mutable_error()->set_code(static_cast<int>(status_code(error->code())));
-      job.mutable_error()->set_message(client_message(*error));
-    }
-    *job.mutable_finished() = TimeUtil::GetCurrentTime();
-    store_.update_job(job);
-    finish(l, job);
-    spdlog::info("job {} {} in {:.3f} s{}{}", id, pb::JobState_Name(job.state()),
-                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
-                 error ? ": " : "", error ? error->what() : "");
+    store_.release(job.id());
+    spdlog::warn("job {} interrupted by the shutdown; requeued", job.id());
+    return job;
   }
+  if (!error) {
+    job.set_state(pb::SUCCEEDED);
+    job.set_stage("done");
+    job.set_fraction(1);
+    *job.mutable_result() = result;
+  } else if (error->code() == ErrorCode::kCancelled) {
+    job.set_state(pb::CANCELLED);
+    job.set_stage("cancelled");
+    job.mutable_error()->set_code(static_cast<int>(grpc::StatusCode::CANCELLED));
+    job.mutable_error()->set_message("cancelled");
+  } else {
+    job.set_state(pb::FAILED);
+    job.set_stage("failed");
+    job.mutable_error()->set_code(static_cast<int>(status_code(error->code())));
+    job.mutable_error()->set_message(client_message(*error));
+  }
+  *job.mutable_finished() = TimeUtil::GetCurrentTime();
+  store_.update_job(job);
+  finish(l, job);
+  return job;
 }
 
 }  // namespace brenier::server

@@ -7,6 +7,8 @@
 #include <atomic>
 #include <condition_variable>
 #include <deque>
+#include <functional>
+#include <optional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -14,6 +16,7 @@
 #include <thread>
 
 #include "brenier/v1/brenier.pb.h"
+#include "common/error.hpp"
 #include "scheduler.hpp"
 #include "store.hpp"
 
@@ -29,6 +32,7 @@ struct ManagerOptions {
   int64_t max_storage_bytes_per_tenant = 0;    // meshes and results (0: no quota)
   int64_t min_free_bytes = int64_t{256} << 20;  // an upload that would leave less is refused
   double retention_seconds = 30 * 86400.0;     // finished jobs and their results (0: kept)
+  double lease_seconds = 30;                   // a shared store: a job's lease without renewal
 };
 
 /// One job's progress as it happens: the events since the job was (re)started, the latest
@@ -42,6 +46,10 @@ struct LiveJob {
   bool terminal = false;
   std::atomic<bool> cancel{false};       // the client asked
   std::atomic<bool> interrupted{false};  // the server is shutting down: requeue, not cancel
+  // The job left this replica without its terminal event here: its lease ran out (another
+  // replica holds it now) or its state could not be written (the database was away).
+  // Watchers go on from the store.
+  std::atomic<bool> detached{false};
   uint64_t end_seq() const { return first_seq + events.size(); }
 };
 
@@ -71,6 +79,13 @@ class Manager {
   /// NOT_FOUND for another tenant's or an unknown job.
   std::shared_ptr<LiveJob> live(const std::string& tenant, const std::string& id, pb::Job& current);
 
+  /// For a job this replica does not hold (another replica runs it): calls `write` with an
+  /// event whenever the stored state, stage or fraction changes and at least every 2 s, and
+  /// returns after the terminal event, when `write` returns false, or when `stop` returns
+  /// true. (Its progress is in the store: the holder writes it every second.)
+  void follow(const std::string& tenant, const std::string& id, const std::function<bool(const pb::JobEvent&)>& write,
+              const std::function<bool()>& stop);
+
   /// Stop taking queued jobs; Submit and Upload answer UNAVAILABLE from now on.
   void begin_shutdown();
   bool shutting_down() const { return shutting_down_; }
@@ -86,6 +101,20 @@ class Manager {
   std::shared_ptr<LiveJob> find_live(const std::string& id);
   void publish(LiveJob& live, const pb::JobEvent& event);
   void finish(const std::shared_ptr<LiveJob>& live, pb::Job job);
+  void cancel_live(const std::shared_ptr<LiveJob>& l, pb::Job& current);
+  pb::Job record_outcome(const std::shared_ptr<LiveJob>& l, pb::Job job, const std::optional<Error>& error,
+                      const pb::JobResult& result, bool requeue);
+  void detach(const std::string& id, const std::shared_ptr<LiveJob>& l, const std::string& why);
+  // Replicas (a shared store): a thread that renews this replica's leases, claims the jobs
+  // whose lease ran out, applies cancellations asked through other replicas and writes the
+  // running jobs' progress for their watchers elsewhere.
+  void lease_loop();
+  void apply_cancels();
+  void write_progress(std::map<std::string, std::string>& written);
+  void renew_leases();
+  void claim_expired();
+  void adopt(const std::string& id, const std::string& why);
+  std::vector<std::pair<std::string, std::shared_ptr<LiveJob>>> live_jobs();
 
   Store& store_;
   ManagerOptions options_;
@@ -97,10 +126,11 @@ class Manager {
   int running_ = 0;
   // Retention: a thread that expires finished jobs (Store::expire_jobs) now and then.
   void expire_loop();
-  std::mutex expire_mutex_;
-  std::condition_variable expire_wake_;
-  bool expire_stop_ = false;
-  std::thread expirer_;
+  // The background threads sleep on this and stop when told.
+  std::mutex background_mutex_;
+  std::condition_variable background_wake_;
+  bool background_stop_ = false;
+  std::thread expirer_, leaser_;
   std::unique_ptr<Scheduler> scheduler_;  // last: its workers use the members above
 };
 

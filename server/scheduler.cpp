@@ -1,5 +1,6 @@
 #include "scheduler.hpp"
 
+#include <algorithm>
 #include <omp.h>
 
 #include <spdlog/spdlog.h>
@@ -65,6 +66,11 @@ void Scheduler::remove(const std::string& id) {
 int Scheduler::queued() {
   std::lock_guard<std::mutex> lock(mutex_);
   return static_cast<int>(queue_.size());
+}
+
+int Scheduler::free_places() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return std::max(0, capacity_ - static_cast<int>(queue_.size()) - reserved_);
 }
 
 void Scheduler::stop_taking() {

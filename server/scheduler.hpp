@@ -51,6 +51,8 @@ class Scheduler {
 
   int workers() const { return static_cast<int>(threads_.size()); }
   int queued();
+  /// Places left in the queue (neither taken nor held).
+  int free_places();
   /// Stops taking queued jobs (they stay queued in the store); running ones go on.
   void stop_taking();
   /// Waits for the running jobs to finish, then joins the workers.

@@ -165,11 +165,21 @@ grpc::Status Service::WatchJob(grpc::ServerContext* ctx, const pb::WatchJobReque
     pb::Job current;
     const std::string tenant = auth_.tenant(ctx);
     std::shared_ptr<LiveJob> l = manager_.live(tenant, bounded(req->id(), "an id"), current);
-    if (!l) {
+    if (!l && (is_terminal(current.state()) || !manager_.store().shared())) {
       writer->Write(state_event(current));
       return grpc::Status::OK;
     }
     const StreamCaps::Slot slot = caps_.take(tenant, "watch", options_.max_watches_per_tenant);
+    // A job another replica holds (or that left this one): followed in the store.
+    auto follow = [&] {
+      manager_.follow(
+          tenant, req->id(), [&](const pb::JobEvent& e) { return writer->Write(e); },
+          [&] { return ctx->IsCancelled() || manager_.shutting_down(); });
+      if (manager_.shutting_down() && !ctx->IsCancelled())
+        fail(ErrorCode::kUnavailable, "the server is shutting down; watch the job through another replica");
+      return grpc::Status::OK;
+    };
+    if (!l) return follow();
     uint64_t next = 0;
     pb::JobEvent first;
     {
@@ -191,6 +201,7 @@ grpc::Status Service::WatchJob(grpc::ServerContext* ctx, const pb::WatchJobReque
         if (is_terminal(e.state())) return grpc::Status::OK;
       }
       batch.clear();
+      if (l->detached) return follow();
       if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "the watch was cancelled");
       if (manager_.shutting_down() && l->interrupted)
         fail(ErrorCode::kUnavailable, "the server is shutting down; the job runs again when it restarts");

@@ -185,13 +185,13 @@ std::string elide_password(const std::string& url) {
 }
 
 std::unique_ptr<Store> open_sqlite_store(const std::string& dir);
-std::unique_ptr<Store> open_postgres_store(const std::string& dir, const std::string& url);
+std::unique_ptr<Store> open_postgres_store(const std::string& dir, const std::string& url, double lease_seconds);
 
-std::unique_ptr<Store> open_store(const std::string& dir, const std::string& database) {
+std::unique_ptr<Store> open_store(const std::string& dir, const std::string& database, double lease_seconds) {
   if (database.empty()) return open_sqlite_store(dir);
   if (database.rfind("postgresql://", 0) != 0 && database.rfind("postgres://", 0) != 0)
     invalid("--database '" + elide_password(database) + "' is not a postgresql://USER[:PASS]@HOST:PORT/DB URL");
-  return open_postgres_store(dir, database);
+  return open_postgres_store(dir, database, lease_seconds);
 }
 
 }  // namespace brenier::server

@@ -80,6 +80,8 @@ class Store {
   virtual std::optional<pb::Job> get_job_any(const std::string& id, std::string* tenant = nullptr) = 0;
   virtual std::vector<pb::Job> list_jobs(const std::string& tenant, pb::JobState state, const std::string& token,
                                          int limit, std::string& next) = 0;
+  /// Writes the job's record; on a shared store only while this replica holds the job
+  /// (Error(kUnavailable) when another replica has claimed it meanwhile).
   virtual void update_job(const pb::Job& job) = 0;
   /// Removes a job row (a submission the full queue refused).
   virtual void delete_job(const std::string& id) = 0;
@@ -87,6 +89,30 @@ class Store {
   virtual int64_t storage_bytes(const std::string& tenant) = 0;
   /// Queued and running jobs of every tenant, oldest first.
   virtual std::vector<std::string> unfinished_jobs() = 0;
+
+  // ---- replicas (PostgreSQL: every brenierd on the database is one service) ----
+  // A job belongs to the replica that holds its lease: the one it was submitted to, or the
+  // one that claimed it after its holder stopped renewing (died, lost the database, or let
+  // it go at a shutdown). With SQLite one process holds everything and these do nothing.
+  /// Whether other processes may share this store (then jobs are leased).
+  virtual bool shared() const { return false; }
+  /// This process's name in the leases.
+  virtual std::string replica() const { return ""; }
+  /// Extends this replica's leases on `ids`; returns those still this replica's (a lease
+  /// that ran out may have been claimed by another).
+  virtual std::vector<std::string> renew_leases(const std::vector<std::string>& ids) { return ids; }
+  /// Claims up to `limit` unfinished jobs whose lease ran out, oldest first (SELECT ... FOR
+  /// UPDATE SKIP LOCKED: replicas claiming at once take different jobs).
+  virtual std::vector<std::string> claim_expired(int /*limit*/) { return {}; }
+  /// Lets this replica's job go at once (a shutdown requeued it): the next claim takes it.
+  virtual void release(const std::string& /*id*/) {}
+  /// Marks an unfinished job for cancellation by whichever replica holds it.
+  virtual void request_cancel(const std::string& /*id*/) {}
+  /// Writes a running job's progress (its record with stage and fraction) for watchers on
+  /// other replicas, unless it has left the running state or this replica meanwhile.
+  virtual void update_progress(const pb::Job& /*job*/) {}
+  /// This replica's unfinished jobs marked for cancellation.
+  virtual std::vector<std::string> cancels_requested() { return {}; }
 
   // ---- collection ----
   /// Removes the blobs no mesh row or job artifact names (left by a kill between a blob and
@@ -116,7 +142,8 @@ class Store {
 /// `database` (postgresql://USER[:PASS]@HOST:PORT/DB). Migrates the schema. Throws
 /// Error(kUnavailable) when the database cannot be reached (its URL in the message, the
 /// password elided), Error(kFailedPrecondition) when a newer brenierd wrote it.
-std::unique_ptr<Store> open_store(const std::string& dir, const std::string& database = "");
+/// `lease_seconds`: how long a replica's claim on a job lasts without renewal (PostgreSQL).
+std::unique_ptr<Store> open_store(const std::string& dir, const std::string& database = "", double lease_seconds = 30);
 
 /// The URL with its password, if any, replaced by "***" (for messages and logs).
 std::string elide_password(const std::string& url);

@@ -14,7 +14,10 @@
 #include <cstring>
 #include <memory>
 #include <mutex>
+#include <random>
 #include <set>
+
+#include <unistd.h>
 
 #include "common/error.hpp"
 #include "store.hpp"
@@ -61,12 +64,21 @@ class Result {
 
 class PostgresStore final : public Store {
  public:
-  PostgresStore(const std::string& dir, const std::string& url);
+  PostgresStore(const std::string& dir, const std::string& url, double lease_seconds);
   const char* backend() const override { return "postgresql"; }
   int version() override;
   bool healthy() override;
 
   BRENIER_STORE_ROWS_OVERRIDE
+
+  bool shared() const override { return true; }
+  std::string replica() const override { return replica_; }
+  std::vector<std::string> renew_leases(const std::vector<std::string>& ids) override;
+  std::vector<std::string> claim_expired(int limit) override;
+  void release(const std::string& id) override;
+  void update_progress(const pb::Job& job) override;
+  void request_cancel(const std::string& id) override;
+  std::vector<std::string> cancels_requested() override;
 
  private:
   struct Connection {
@@ -126,6 +138,8 @@ class PostgresStore final : public Store {
   std::vector<M> page_of(const char* sql, const std::vector<Param>& params, int limit, std::string& next);
 
   std::string url_;
+  int64_t lease_ms_;
+  std::string replica_;  // HOST.PID.RANDOM: a restarted process is a new replica
   std::vector<std::unique_ptr<Connection>> pool_;
   std::atomic<unsigned> next_{0};
 };
@@ -215,7 +229,16 @@ const char* const kMigrations[] = {
     "CREATE INDEX jobs_tenant_state ON jobs (tenant, state);"
     "CREATE INDEX jobs_state ON jobs (state);"
     "CREATE INDEX jobs_finished ON jobs (finished_at) WHERE finished_at > 0;",
+    // 1 -> 2: leases (the replica holding a job, until when, in ms of the database's clock)
+    // and cancellations asked through another replica. States 1 and 2: queued, running.
+    "ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT '';"
+    "ALTER TABLE jobs ADD COLUMN lease_until BIGINT NOT NULL DEFAULT 0;"
+    "ALTER TABLE jobs ADD COLUMN cancel BOOLEAN NOT NULL DEFAULT false;"
+    "CREATE INDEX jobs_unfinished ON jobs (owner, lease_until) WHERE state IN (1, 2);",
 };
+
+// Now in ms on the database's clock: leases never compare two hosts' clocks.
+#define BRENIER_PG_NOW_MS "(EXTRACT(EPOCH FROM clock_timestamp()) * 1000)::BIGINT"
 
 }  // namespace
 
@@ -223,7 +246,17 @@ int postgres_schema_version() { return static_cast<int>(std::size(kMigrations));
 
 namespace {
 
-PostgresStore::PostgresStore(const std::string& dir, const std::string& url) : Store(dir), url_(url) {
+std::string replica_name() {
+  char host[256] = {};
+  if (::gethostname(host, sizeof host - 1) != 0) std::strcpy(host, "host");
+  std::random_device rd;
+  char tail[16];
+  std::snprintf(tail, sizeof tail, "%08x", rd());
+  return std::string(host) + "." + std::to_string(::getpid()) + "." + tail;
+}
+
+PostgresStore::PostgresStore(const std::string& dir, const std::string& url, double lease_seconds)
+    : Store(dir), url_(url), lease_ms_(static_cast<int64_t>(lease_seconds * 1000)), replica_(replica_name()) {
   for (int k = 0; k < 8; ++k) pool_.push_back(std::make_unique<Connection>());
   pool_[0]->conn = connect();  // unreachable: fail now, with the URL
   migrate();
@@ -350,8 +383,10 @@ pb::Job PostgresStore::insert_job(const std::string& tenant, const pb::Job& job,
                              {text(tenant), num(pb::QUEUED), num(pb::RUNNING)});
       if (n.integer(0, 0) >= max_unfinished) rows::over_job_quota(n.integer(0, 0));
     }
-    l.run("INSERT INTO jobs (id, tenant, request_id, state, record) VALUES ($1, $2, $3, $4, $5)",
-          {text(job.id()), text(tenant), text(job.request_id()), num(job.state()), record(job.SerializeAsString())});
+    l.run("INSERT INTO jobs (id, tenant, request_id, state, record, owner, lease_until) "
+          "VALUES ($1, $2, $3, $4, $5, $6, " BRENIER_PG_NOW_MS " + $7)",
+          {text(job.id()), text(tenant), text(job.request_id()), num(job.state()), record(job.SerializeAsString()),
+           text(replica_), num(lease_ms_)});
     inserted = true;
     return job;
   });
@@ -383,9 +418,64 @@ std::vector<pb::Job> PostgresStore::list_jobs(const std::string& tenant, pb::Job
 
 void PostgresStore::update_job(const pb::Job& job) {
   Lease l(*this);
-  l.run("UPDATE jobs SET state = $1, record = $2, result_bytes = $3, finished_at = $4 WHERE id = $5",
-        {num(job.state()), record(job.SerializeAsString()), num(rows::result_bytes(job)), num(job.finished().seconds()),
-         text(job.id())});
+  const Result r = l.run(
+      "UPDATE jobs SET state = $1, record = $2, result_bytes = $3, finished_at = $4 WHERE id = $5 AND owner = $6",
+      {num(job.state()), record(job.SerializeAsString()), num(rows::result_bytes(job)), num(job.finished().seconds()),
+       text(job.id()), text(replica_)});
+  if (r.affected() == 0 && l.run("SELECT 1 FROM jobs WHERE id = $1", {text(job.id())}).rows() > 0)
+    fail(ErrorCode::kUnavailable, "job " + job.id() + " is held by another replica now (this one's lease ran out)");
+}
+
+// A text[] literal of ids (hex digits: nothing to quote).
+std::string id_array(const std::vector<std::string>& ids) {
+  std::string a = "{";
+  for (const std::string& id : ids) a += (a.size() > 1 ? "," : "") + id;
+  return a + "}";
+}
+
+std::vector<std::string> column(const Result& r) {
+  std::vector<std::string> out;
+  for (int i = 0; i < r.rows(); ++i) out.push_back(r.text(i, 0));
+  return out;
+}
+
+std::vector<std::string> PostgresStore::renew_leases(const std::vector<std::string>& ids) {
+  if (ids.empty()) return {};
+  Lease l(*this);
+  return column(l.run("UPDATE jobs SET lease_until = " BRENIER_PG_NOW_MS " + $1 "
+                      "WHERE owner = $2 AND id = ANY($3::TEXT[]) AND state IN (1, 2) RETURNING id",
+                      {num(lease_ms_), text(replica_), text(id_array(ids))}));
+}
+
+std::vector<std::string> PostgresStore::claim_expired(int limit) {
+  if (limit <= 0) return {};
+  Lease l(*this);
+  return column(l.run("UPDATE jobs SET owner = $1, lease_until = " BRENIER_PG_NOW_MS " + $2 WHERE id IN ("
+                      "SELECT id FROM jobs WHERE state IN (1, 2) AND lease_until < " BRENIER_PG_NOW_MS
+                      " ORDER BY seq LIMIT $3 FOR UPDATE SKIP LOCKED) RETURNING id",
+                      {text(replica_), num(lease_ms_), num(limit)}));
+}
+
+void PostgresStore::release(const std::string& id) {
+  Lease l(*this);
+  l.run("UPDATE jobs SET owner = '', lease_until = 0 WHERE id = $1 AND owner = $2", {text(id), text(replica_)});
+}
+
+void PostgresStore::update_progress(const pb::Job& job) {
+  Lease l(*this);
+  // Only over a running row of this replica's: never over a terminal or requeued state.
+  l.run("UPDATE jobs SET record = $1 WHERE id = $2 AND owner = $3 AND state = 2",
+        {record(job.SerializeAsString()), text(job.id()), text(replica_)});
+}
+
+void PostgresStore::request_cancel(const std::string& id) {
+  Lease l(*this);
+  l.run("UPDATE jobs SET cancel = true WHERE id = $1 AND state IN (1, 2)", {text(id)});
+}
+
+std::vector<std::string> PostgresStore::cancels_requested() {
+  Lease l(*this);
+  return column(l.run("SELECT id FROM jobs WHERE owner = $1 AND cancel AND state IN (1, 2)", {text(replica_)}));
 }
 
 void PostgresStore::delete_job(const std::string& id) {
@@ -404,10 +494,7 @@ int64_t PostgresStore::storage_bytes(const std::string& tenant) {
 
 std::vector<std::string> PostgresStore::unfinished_jobs() {
   Lease l(*this);
-  const Result r = l.run("SELECT id FROM jobs WHERE state IN ($1, $2) ORDER BY seq", {num(pb::QUEUED), num(pb::RUNNING)});
-  std::vector<std::string> out;
-  for (int i = 0; i < r.rows(); ++i) out.push_back(r.text(i, 0));
-  return out;
+  return column(l.run("SELECT id FROM jobs WHERE state IN ($1, $2) ORDER BY seq", {num(pb::QUEUED), num(pb::RUNNING)}));
 }
 
 int PostgresStore::delete_finished_jobs(int64_t finished_before, std::vector<std::string>& blobs) {
@@ -434,8 +521,8 @@ void PostgresStore::named_blobs(std::set<std::string>& meshes, std::set<std::str
 
 }  // namespace
 
-std::unique_ptr<Store> open_postgres_store(const std::string& dir, const std::string& url) {
-  return std::make_unique<PostgresStore>(dir, url);
+std::unique_ptr<Store> open_postgres_store(const std::string& dir, const std::string& url, double lease_seconds) {
+  return std::make_unique<PostgresStore>(dir, url, lease_seconds);
 }
 
 }  // namespace brenier::server

@@ -6,6 +6,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -29,17 +30,24 @@ inline std::string temp_dir(const std::string& name) {
 
 class ServerProcess {
  public:
-  /// Starts brenierd on `data` with extra flags; waits until it listens.
-  ServerProcess(const std::string& data, std::vector<std::string> flags = {}) : data_(data) { start(flags); }
+  /// Starts brenierd on `data` with extra flags; waits until it listens. `replica` names one
+  /// of several processes on the same data directory (and database).
+  ServerProcess(const std::string& data, std::vector<std::string> flags = {}, const std::string& replica = "")
+      : data_(data), replica_(replica) {
+    start(flags);
+  }
   ~ServerProcess() { stop(); }
 
   void start(const std::vector<std::string>& flags) {
     flags_ = flags;
-    const std::string port_file = data_ + ".port";
+    const std::string port_file = data_ + replica_ + ".port";
     std::filesystem::remove(port_file);
     std::vector<std::string> args = {BRENIERD, "--listen", "127.0.0.1:0", "--data", data_, "--port-file", port_file,
                                      "--log-level", "warn"};
-    if (const std::string db = test_database(data_); !db.empty()) args.insert(args.end(), {"--database", db});
+    // A short lease on PostgreSQL: a killed server's jobs are taken over in seconds.
+    const bool own_database = std::find(flags.begin(), flags.end(), "--database") != flags.end();
+    if (const std::string db = test_database(data_); !db.empty() && !own_database)
+      args.insert(args.end(), {"--database", db, "--lease-seconds", "4"});
     args.insert(args.end(), flags.begin(), flags.end());
     pid_ = ::fork();
     if (pid_ == 0) {
@@ -106,7 +114,7 @@ class ServerProcess {
   pid_t pid() const { return pid_; }
 
  private:
-  std::string data_;
+  std::string data_, replica_;
   std::vector<std::string> flags_;
   pid_t pid_ = -1;
   int port_ = 0;
