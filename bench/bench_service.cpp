@@ -44,30 +44,7 @@ double median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-struct Server {
-  pid_t pid = -1;
-  std::string address;
-  Server(const std::string& brenierd, const std::string& data, const std::vector<std::string>& flags) {
-    std::filesystem::remove_all(data);
-    const std::string port_file = data + ".port";
-    std::filesystem::remove(port_file);
-    std::vector<std::string> args = {brenierd, "--listen", "127.0.0.1:0", "--data", data, "--port-file", port_file,
-                                     "--log-level", "warn"};
-    args.insert(args.end(), flags.begin(), flags.end());
-    pid = brenier::bench::spawn(args);
-    address = "127.0.0.1:" + std::to_string(brenier::bench::wait_for_port(port_file, pid));
-  }
-  ~Server() {
-    kill(pid, SIGTERM);
-    int st = 0;
-    waitpid(pid, &st, 0);
-  }
-  brenier::client::Client client() const {
-    brenier::client::Options o;
-    o.server = address;
-    return brenier::client::Client(o);
-  }
-};
+using brenier::bench::Server;
 
 // The small disk every submission maps.
 std::string upload_small(brenier::client::Client& c) {

@@ -359,8 +359,9 @@ std::vector<std::pair<std::string, std::shared_ptr<LiveJob>>> Manager::live_jobs
   return {live_.begin(), live_.end()};
 }
 
-// Every tick (a tenth of the lease, at most a second): cancellations asked elsewhere and the
-// running jobs' progress; every third of the lease: renewals and claims.
+// Every tick (a tenth of the lease, at most a second): cancellations asked elsewhere, the
+// running jobs' progress and claims of jobs whose lease ran out (so a dead replica's jobs
+// run again within a tick of their lease's end); every third of the lease: renewals.
 void Manager::lease_loop() {
   const double tick = std::clamp(options_.lease_seconds / 10, 0.05, 1.0);
   const int renew_every = std::max(1, static_cast<int>(options_.lease_seconds / 3 / tick));
@@ -372,10 +373,8 @@ void Manager::lease_loop() {
     try {
       apply_cancels();
       write_progress(written);
-      if (n % renew_every == 0) {
-        renew_leases();
-        if (!shutting_down_) claim_expired();
-      }
+      if (n % renew_every == 0) renew_leases();
+      if (!shutting_down_) claim_expired();
       if (!last_error.empty()) spdlog::info("leases: the database answers again");
       last_error.clear();
     } catch (const std::exception& e) {
