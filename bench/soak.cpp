@@ -1,19 +1,26 @@
-// Soak of brenierd under faults (issue 20), a timed harness:
+// Soak of brenierd under faults (issues 20 and 21), a timed harness:
 //   bench_soak BRENIERD [--minutes M=30] [--clients N=64] [--kill-every S=180] [--work DIR]
+//              [--postgres POSTGRES_SH]
 // starts brenierd on loopback, runs N clients that mix uploads, maps (disk and sphere,
 // conformal and area-preserving), distances, matrices, cancels, deletes, watches and result
 // downloads, and kills the server with SIGKILL every S seconds (±50 %) and restarts it on the
-// same port. Then, without faults, it waits for every job the server accepted and checks:
+// same port. With --postgres: a PostgreSQL 15 of its own (tests/service/postgres.sh) and two
+// replicas on it and one data directory, each client call going to either; each fault kills
+// with -9 one replica, PostgreSQL (then started again), or both a replica and PostgreSQL.
+// Then, without faults, it waits for every job the server accepted and checks:
 //  - no accepted job is lost (each is found, and ends SUCCEEDED, FAILED or CANCELLED);
 //  - every downloaded result matches the SHA-256 the server gives for it;
 //  - no status a client could not have caused (INTERNAL, UNKNOWN, DATA_LOSS) was answered;
 //  - after a clean stop, no blob is orphaned and no row names a missing blob (read from the
-//    SQLite database and the blob folders directly, not through the server's code);
+//    database and the blob folders directly, not through the server's code; on PostgreSQL
+//    orphans are only counted: replicas sweep those an hour old, as another replica may be
+//    between a blob and its row);
 //  - RSS after warm-up: sampled every 5 s; per server life, the growth from the first sample
 //    after 60 s to the last, and the slope; the life without kills at the end is the cleanest.
 // Prints figures and exits non-zero when a check fails.
 #include <fcntl.h>
 #include <signal.h>
+#include <libpq-fe.h>
 #include <sqlite3.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -26,6 +33,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <random>
 #include <set>
@@ -48,14 +56,16 @@ double since(Clock::time_point t0) { return std::chrono::duration<double>(Clock:
 // brenierd as a child process on a fixed port once the first start has picked one.
 class Server {
  public:
-  Server(std::string brenierd, std::string data) : brenierd_(std::move(brenierd)), data_(std::move(data)) {}
+  Server(std::string brenierd, std::string data, std::string tag = "", std::vector<std::string> flags = {})
+      : brenierd_(std::move(brenierd)), data_(std::move(data)), tag_(std::move(tag)), flags_(std::move(flags)) {}
   void start() {
-    const std::string port_file = data_ + ".port";
+    const std::string port_file = data_ + tag_ + ".port";
     fs::remove(port_file);
     const std::string listen = "127.0.0.1:" + std::to_string(port_);
     std::vector<std::string> args = {brenierd_, "--listen", listen, "--data", data_, "--port-file", port_file,
                                      "--log-level", "warn", "--queue", "256", "--grace", "5"};
-    pid_ = brenier::bench::spawn(args, data_ + ".log");
+    args.insert(args.end(), flags_.begin(), flags_.end());
+    pid_ = brenier::bench::spawn(args, data_ + tag_ + ".log");
     port_ = brenier::bench::wait_for_port(port_file, pid_);  // its log: data_ + ".log"
     started_ = Clock::now();
   }
@@ -87,7 +97,8 @@ class Server {
   std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
 
  private:
-  std::string brenierd_, data_;
+  std::string brenierd_, data_, tag_;
+  std::vector<std::string> flags_;
   int port_ = 0;
   pid_t pid_ = -1;
   Clock::time_point started_;
@@ -136,20 +147,24 @@ std::string jittered(const brenier::mesh::TriMesh& base, std::mt19937_64& rng, b
 
 class Soaker {
  public:
-  Soaker(Server& server, Tally& tally, std::atomic<bool>& stop) : server_(server), tally_(tally), stop_(stop) {}
+  Soaker(std::vector<Server*> servers, Tally& tally, std::atomic<bool>& stop)
+      : servers_(std::move(servers)), tally_(tally), stop_(stop) {}
 
   void run_client(int index) {
     std::mt19937_64 rng(1000 + index);
-    brenier::client::Options o;
-    o.server = server_.address();
-    o.call_timeout = 20;
-    o.token = "";
-    Client c(o);
+    std::vector<Client> clients;  // one per replica; each call goes to either, as behind a balancer
+    for (Server* s : servers_) {
+      brenier::client::Options o;
+      o.server = s->address();
+      o.call_timeout = 20;
+      clients.emplace_back(o);
+    }
     std::vector<std::string> disks, spheres, jobs;
     const auto disk = brenier::mesh::make_disk(4 + index % 5);
     const auto sphere = brenier::mesh::make_icosphere(1 + index % 2);
     while (!stop_) {
       const int op = std::uniform_int_distribution<int>(0, 99)(rng);
+      Client& c = clients[std::uniform_int_distribution<size_t>(0, clients.size() - 1)(rng)];
       try {
         if (op < 12 || disks.size() < 3) {
           const bool sph = op % 4 == 0;
@@ -247,29 +262,48 @@ class Soaker {
     ++tally_.calls[std::string(kind) + " 0"];
   }
 
-  Server& server_;
+  std::vector<Server*> servers_;
   Tally& tally_;
   std::atomic<bool>& stop_;
 };
 
-// Reads the database and the blob folders directly: blobs no row names, rows whose blob is gone.
-std::pair<int, int> orphans_and_missing(const std::string& data) {
+// The mesh ids rows name and the result blobs jobs name, read from the database directly.
+void named_blobs(const std::string& data, const std::string& database, std::set<std::string>& meshes,
+                 std::set<std::string>& results) {
+  auto add_results = [&](const void* p, int n) {
+    pb::Job j;
+    j.ParseFromArray(p, n);
+    for (const auto& a : j.result().artifacts()) results.insert(a.sha256());
+  };
+  if (!database.empty()) {
+    PGconn* c = PQconnectdb(database.c_str());
+    if (PQstatus(c) != CONNECTION_OK) throw std::runtime_error("cannot reach the database");
+    PGresult* r = PQexec(c, "SELECT id FROM meshes");
+    for (int i = 0; i < PQntuples(r); ++i) meshes.insert(PQgetvalue(r, i, 0));
+    PQclear(r);
+    r = PQexecParams(c, "SELECT record FROM jobs", 0, nullptr, nullptr, nullptr, nullptr, 1);  // binary
+    for (int i = 0; i < PQntuples(r); ++i) add_results(PQgetvalue(r, i, 0), PQgetlength(r, i, 0));
+    PQclear(r);
+    PQfinish(c);
+    return;
+  }
   sqlite3* db = nullptr;
   if (sqlite3_open_v2((data + "/brenier.db").c_str(), &db, SQLITE_OPEN_READONLY, nullptr) != SQLITE_OK)
     throw std::runtime_error("cannot open the database");
-  std::set<std::string> meshes, results;
   sqlite3_stmt* s = nullptr;
   sqlite3_prepare_v2(db, "SELECT id FROM meshes", -1, &s, nullptr);
   while (sqlite3_step(s) == SQLITE_ROW) meshes.insert(reinterpret_cast<const char*>(sqlite3_column_text(s, 0)));
   sqlite3_finalize(s);
   sqlite3_prepare_v2(db, "SELECT record FROM jobs", -1, &s, nullptr);
-  while (sqlite3_step(s) == SQLITE_ROW) {
-    pb::Job j;
-    j.ParseFromArray(sqlite3_column_blob(s, 0), sqlite3_column_bytes(s, 0));
-    for (const auto& a : j.result().artifacts()) results.insert(a.sha256());
-  }
+  while (sqlite3_step(s) == SQLITE_ROW) add_results(sqlite3_column_blob(s, 0), sqlite3_column_bytes(s, 0));
   sqlite3_finalize(s);
   sqlite3_close(db);
+}
+
+// Reads the database and the blob folders directly: blobs no row names, rows whose blob is gone.
+std::pair<int, int> orphans_and_missing(const std::string& data, const std::string& database) {
+  std::set<std::string> meshes, results;
+  named_blobs(data, database, meshes, results);
   int orphans = 0, missing = 0;
   for (const auto& [folder, named] : {std::pair{"/blobs/meshes", &meshes}, std::pair{"/blobs/results", &results}}) {
     std::set<std::string> present;
@@ -302,18 +336,20 @@ double slope(const std::vector<std::pair<double, double>>& s) {
 
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::fprintf(stderr, "usage: %s BRENIERD [--minutes M] [--clients N] [--kill-every S] [--work DIR]\n", argv[0]);
+    std::fprintf(stderr, "usage: %s BRENIERD [--minutes M] [--clients N] [--kill-every S] [--work DIR] [--postgres SH]\n",
+                 argv[0]);
     return 2;
   }
   double minutes = 30, kill_every = 180;
   int clients = 64;
-  std::string work = fs::temp_directory_path().string() + "/brenier-soak";
+  std::string work = fs::temp_directory_path().string() + "/brenier-soak", postgres_sh;
   for (int i = 2; i + 1 < argc; i += 2) {
     const std::string k = argv[i], v = argv[i + 1];
     if (k == "--minutes") minutes = std::stod(v);
     else if (k == "--clients") clients = std::stoi(v);
     else if (k == "--kill-every") kill_every = std::stod(v);
     else if (k == "--work") work = v;
+    else if (k == "--postgres") postgres_sh = v;
     else {
       std::fprintf(stderr, "bench_soak: unknown option %s\n", k.c_str());
       return 2;
@@ -322,11 +358,34 @@ int main(int argc, char** argv) {
   fs::remove_all(work);
   fs::create_directories(work);
   const std::string data = work + "/data";
-  Server server(argv[1], data);
-  server.start();
+  // With PostgreSQL: its own cluster, and two replicas on it and on one data directory.
+  const std::string pg_state = work + "/pg/url";
+  auto pg = [&](const std::string& cmd) { return std::system((postgres_sh + " " + cmd + " " + pg_state + " > /dev/null").c_str()); };
+  std::string database;
+  if (!postgres_sh.empty()) {
+    if (pg("start") != 0) {
+      std::fprintf(stderr, "bench_soak: cannot start PostgreSQL with %s\n", postgres_sh.c_str());
+      return 1;
+    }
+    std::ifstream(pg_state) >> database;
+  }
+  std::vector<std::unique_ptr<Server>> replicas;
+  if (database.empty()) {
+    replicas.push_back(std::make_unique<Server>(argv[1], data));
+  } else {
+    for (const char* tag : {"a", "b"})
+      replicas.push_back(std::make_unique<Server>(argv[1], data, tag,
+                                                  std::vector<std::string>{"--database", database, "--lease-seconds", "10"}));
+  }
+  std::vector<Server*> servers;
+  for (auto& r : replicas) {
+    r->start();
+    servers.push_back(r.get());
+  }
+  Server& server = *servers.front();  // its RSS is sampled; the drain goes through it
   Tally tally;
   std::atomic<bool> stop{false};
-  Soaker soaker(server, tally, stop);
+  Soaker soaker(servers, tally, stop);
   std::vector<std::thread> threads;
   for (int i = 0; i < clients; ++i) threads.emplace_back([&, i] { soaker.run_client(i); });
 
@@ -350,20 +409,29 @@ int main(int argc, char** argv) {
   std::mt19937_64 rng(7);
   const auto t0 = Clock::now();
   int kills = 0;
-  double next_kill = kill_every * std::uniform_real_distribution<double>(0.5, 1.5)(rng);
+  double next_kill = kill_every * std::uniform_real_distribution<double>(0.5, 1.5)(rng), last_fault = 0;
+  std::map<std::string, int> faults;
   // The last fifth of the time runs without kills: one long life to read the RSS from.
   const double faults_until = 60 * minutes * 0.8;
   while (since(t0) < 60 * minutes) {
     std::this_thread::sleep_for(std::chrono::seconds(5));
     samples.emplace_back(server.uptime(), server.rss_mb());
-    if (since(t0) < faults_until && server.uptime() >= next_kill) {
-      close_life();
-      server.kill9();
+    if (since(t0) < faults_until && since(t0) - last_fault >= next_kill) {
+      // Which: the server (SQLite); with replicas, one of them, PostgreSQL, or a replica and PostgreSQL.
+      const int what = database.empty() ? 0 : std::uniform_int_distribution<int>(0, 3)(rng);
+      const char* names[] = {"replica a", "replica b", "PostgreSQL", "replica a and PostgreSQL"};
+      Server* victim = what == 1 ? servers[1] : what == 2 ? nullptr : servers[0];
+      if (victim == &server) close_life();
+      if (victim) victim->kill9();
+      if (what >= 2) pg("kill");
       ++kills;
-      std::this_thread::sleep_for(std::chrono::milliseconds(500));
-      server.start();
+      ++faults[database.empty() ? "brenierd" : names[what]];
+      std::this_thread::sleep_for(std::chrono::milliseconds(what >= 2 ? 2000 : 500));
+      if (what >= 2 && pg("resume") != 0) tally.problems.push_back("PostgreSQL did not start again");
+      if (victim) victim->start();
+      last_fault = since(t0);
       next_kill = kill_every * std::uniform_real_distribution<double>(0.5, 1.5)(rng);
-      std::printf("%.0f s: kill -9 #%d, restarted\n", since(t0), kills);
+      std::printf("%.0f s: kill -9 #%d (%s), restarted\n", since(t0), kills, database.empty() ? "brenierd" : names[what]);
       std::fflush(stdout);
     }
   }
@@ -404,11 +472,14 @@ int main(int argc, char** argv) {
       }
     }
   }
-  const bool clean_stop = server.stop();
-  const auto [orphans, missing] = orphans_and_missing(data);
+  bool clean_stop = true;
+  for (Server* r : servers) clean_stop = r->stop() && clean_stop;
+  const auto [orphans, missing] = orphans_and_missing(data, database);
+  if (!database.empty()) pg("stop");
 
-  std::printf("\nsoak: %.1f min, %d clients, %d kills -9, %zu jobs accepted\n", since(t0) / 60, clients, kills,
-              tally.accepted.size());
+  std::printf("\nsoak: %.1f min, %d clients, %zu replica(s) on %s, %d kills -9, %zu jobs accepted\n", since(t0) / 60,
+              clients, servers.size(), database.empty() ? "SQLite" : "PostgreSQL", kills, tally.accepted.size());
+  for (const auto& [k, n] : faults) std::printf("  killed %-26s %d times\n", k.c_str(), n);
   for (const auto& [k, n] : tally.calls) std::printf("  calls %-16s %lld\n", k.c_str(), static_cast<long long>(n));
   for (const auto& [k, n] : states) std::printf("  jobs %-10s %d\n", k.c_str(), n);
   std::printf("  refusals and job failures (1000 + code: a job's error):\n");
@@ -418,11 +489,13 @@ int main(int argc, char** argv) {
               static_cast<long long>(tally.verified));
   std::printf("  after a clean stop (%s): orphaned blobs %d, rows with a missing blob %d\n", clean_stop ? "exit 0" : "NOT exit 0",
               orphans, missing);
-  std::printf("  server lives (s, RSS MB at 60 s -> end, max, slope MB/min after 60 s):\n");
+  std::printf("  %s lives (s, RSS MB at 60 s -> end, max, slope MB/min after 60 s):\n",
+              database.empty() ? "server" : "replica a's");
   for (const Life& l : lives)
     std::printf("    %7.0f s  %7.1f -> %7.1f  max %7.1f  slope %+6.2f\n", l.seconds, l.rss_warm, l.rss_end, l.rss_max,
                 l.slope_mb_per_min);
-  bool ok = lost == 0 && unfinished == 0 && orphans == 0 && missing == 0 && clean_stop &&
+  // Orphans on PostgreSQL: replicas spare an hour's (another may be between a blob and its row).
+  bool ok = lost == 0 && unfinished == 0 && (orphans == 0 || !database.empty()) && missing == 0 && clean_stop &&
             tally.downloads == tally.verified && tally.problems.empty();
   for (const auto& p : tally.problems) std::printf("  PROBLEM %s\n", p.c_str());
   std::printf("soak %s\n", ok ? "PASSED" : "FAILED");

@@ -80,6 +80,11 @@ void Manager::expire_loop() {
       const int64_t now = TimeUtil::GetCurrentTime().seconds();
       if (const int n = store_.expire_jobs(now - static_cast<int64_t>(options_.retention_seconds), spare))
         spdlog::info("expired {} finished jobs older than the retention period", n);
+      // Replicas do not restart to sweep: blobs an hour old that nothing names (a replica killed
+      // between a blob and its row) go now and then.
+      if (store_.shared())
+        if (const int n = store_.sweep_orphaned_blobs(std::chrono::hours(1)))
+          spdlog::info("removed {} orphaned blobs", n);
     } catch (const std::exception& e) {
       spdlog::warn("expiring finished jobs failed: {}", e.what());
     }
