@@ -1,5 +1,6 @@
 """Shared by the service's Python tests: start brenierd on loopback with an ephemeral port,
 write synthetic meshes, check conditions."""
+import hashlib
 import os
 import shutil
 import signal
@@ -42,10 +43,30 @@ def grid_off(path, n, bump=0.0):
     return path
 
 
+def test_database(data):
+    """A fresh PostgreSQL database for a data directory when ctest runs the "pg." variant
+    (BRENIER_TEST_PG names the file with the URL of the PostgreSQL its fixture started), else
+    None (brenierd's SQLite)."""
+    state = os.environ.get("BRENIER_TEST_PG")
+    if not state:
+        return None
+    with open(state) as f:
+        admin = f.read().split()[0]
+    name = "p" + hashlib.sha256(data.encode()).hexdigest()[:20]
+    for sql in (f"DROP DATABASE IF EXISTS {name}", f"CREATE DATABASE {name}"):
+        subprocess.run(["/usr/bin/psql", "-q", admin, "-c", sql], check=True, stdout=subprocess.DEVNULL,
+                       stderr=subprocess.DEVNULL)
+    return admin[: admin.rfind("/") + 1] + name
+
+
 class Server:
     def __init__(self, brenierd, work, *flags):
         self.data = os.path.join(work, "data")
         shutil.rmtree(self.data, ignore_errors=True)
+        database = test_database(self.data)
+        if database:
+            print(f"brenierd on PostgreSQL: {database}", flush=True)
+            flags = ("--database", database, *flags)
         port_file = os.path.join(work, "port")
         if os.path.exists(port_file):
             os.remove(port_file)
