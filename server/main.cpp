@@ -12,6 +12,8 @@
 #include <cstdlib>
 #include <fstream>
 #include <atomic>
+#include <condition_variable>
+#include <mutex>
 #include <thread>
 #include <cerrno>
 #include <fcntl.h>
@@ -167,13 +169,17 @@ int serve(const Flags& f) {
   }
   // The health service follows the database: NOT_SERVING while it is away (calls meanwhile
   // answer UNAVAILABLE), SERVING again when it is back.
-  std::atomic<bool> stopping{false};
+  std::mutex health_mutex;
+  std::condition_variable health_wake;
+  bool stopping = false;
   std::thread health([&] {
     bool serving = true;
-    while (!stopping) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    std::unique_lock<std::mutex> lock(health_mutex);
+    while (!health_wake.wait_for(lock, std::chrono::milliseconds(500), [&] { return stopping; })) {
+      lock.unlock();
       const bool now = store.healthy();
-      if (now != serving && !stopping) {
+      lock.lock();
+      if (now != serving && !stopping) {  // under the lock: never SERVING again once stopping
         server->GetHealthCheckService()->SetServingStatus(now);
         if (now) spdlog::info("the database answers again: serving");
         else spdlog::error("the database does not answer: NOT_SERVING until it does");
@@ -185,7 +191,11 @@ int serve(const Flags& f) {
   std::thread waiter([&] {
     const int sig = wait_stop_signal();
     spdlog::info("signal {}: shutting down (grace {} s)", sig, f.grace);
-    stopping = true;
+    {
+      std::lock_guard<std::mutex> lock(health_mutex);
+      stopping = true;
+    }
+    health_wake.notify_all();
     server->GetHealthCheckService()->SetServingStatus(false);
     manager.begin_shutdown();
     manager.finish_shutdown(f.grace);

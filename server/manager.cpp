@@ -583,6 +583,7 @@ pb::Job Manager::record_outcome(const std::shared_ptr<LiveJob>& l, pb::Job job, 
     store_.update_job(job);
     store_.release(job.id());
     spdlog::warn("job {} interrupted by the shutdown; requeued", job.id());
+    if (store_.shared()) detach(job.id(), l, "let go at the shutdown");  // not renewed any more
     return job;
   }
   if (!error) {

@@ -1229,13 +1229,14 @@ TEST(Service, AnotherReplicaWatchesAndCancelsAJob) {
   const std::string id = ca.submit(r).id();
   EXPECT_EQ(cb.submit(r).id(), id);  // idempotent across replicas
   EXPECT_EQ(cb.get_mesh(big).name(), "big");
-  ASSERT_EQ(wait_for_stage(cb, id, "conformal").state(), pb::RUNNING);
+  // In the transport, whose iterations look for a cancellation (a factorization does not).
+  ASSERT_EQ(wait_for_stage(cb, id, "omt").state(), pb::RUNNING);
   std::vector<std::pair<Clock::time_point, pb::JobEvent>> events;
   std::thread watcher([&] {
     Client w = b.client();
     w.watch(id, [&](const pb::JobEvent& e) { events.emplace_back(Clock::now(), e); });
   });
-  std::this_thread::sleep_for(std::chrono::milliseconds(2500));
+  std::this_thread::sleep_for(std::chrono::milliseconds(1200));
   const auto asked = Clock::now();
   cb.cancel(id);
   watcher.join();
@@ -1245,7 +1246,7 @@ TEST(Service, AnotherReplicaWatchesAndCancelsAJob) {
   std::printf("cancel through another replica: the job stopped %.2f s after the call; %zu events\n", stop,
               events.size());
   EXPECT_LT(stop, 5.0);  // within 2 s by design (bench/RESULTS.md); slack for slow builds
-  EXPECT_GE(events.size(), 3u);
+  EXPECT_GE(events.size(), 2u);
   for (size_t k = 1; k < events.size(); ++k)
     EXPECT_LT(std::chrono::duration<double>(events[k].first - events[k - 1].first).count(), 2.5) << k;
   EXPECT_EQ(ca.get(id).state(), pb::CANCELLED);
