@@ -803,7 +803,9 @@ TEST(Service, SigtermAfterTheGracePeriodRequeuesTheRunningJob) {
   wait_for_stage(c, id, "omt");
   const auto t0 = Clock::now();
   EXPECT_EQ(server.stop(), 0);
-  EXPECT_LT(std::chrono::duration<double>(Clock::now() - t0).count(), 5.0);
+  // The interrupted job ends at its next check, within a Newton iteration: over a second each
+  // under the sanitizers on a loaded machine (5 s was exceeded by 0.3 s there).
+  EXPECT_LT(std::chrono::duration<double>(Clock::now() - t0).count(), 10.0);
   server.start({"--workers", "1"});
   Client c2 = server.client();
   const pb::Job j = c2.watch(id);
