@@ -1,10 +1,10 @@
 // Timed harness for issue 21's targets (figures in bench/RESULTS.md):
-//   bench_replicas BRENIERD POSTGRES_SH [RATE] [SECONDS]
+//   bench_replicas BRENIERD POSTGRES_SH [PAUSE_MS]
 // starts a PostgreSQL 15 of its own (tests/service/postgres.sh) and brenierd processes on
 // loopback, and measures, SQLite and PostgreSQL in the same run:
-//  1. SubmitJob latency at a paced RATE submissions/s (default 300) for SECONDS (default 10),
-//     16 client threads each sending at its scheduled times (p50, p99, max, the rate reached),
-//     small map jobs running meanwhile on 2 workers;
+//  1. SubmitJob latency at ~300 submissions/s: 32 clients each sending a Poisson gap of
+//     PAUSE_MS (default 85 ms, ~300/s on 2 cores with the jobs running) after its last answer, from one driver thread (submit_load.hpp, as bench_service), the
+//     small map jobs running meanwhile on the two cores;
 //  2. the end-to-end time of a small map job on an idle server (submit, watch to the end,
 //     download the result), median of 15;
 // then, on PostgreSQL, 3. the takeover time: two replicas, a long job running on A, A killed
@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "child_process.hpp"
+#include "submit_load.hpp"
 #include "mesh/io.hpp"
 #include "mesh/shapes.hpp"
 
@@ -67,35 +68,16 @@ std::string small_mesh(brenier::client::Client& c) {
       .id();
 }
 
-// 1: paced submissions; returns their latencies in ms.
-void paced_submissions(const Server& s, const char* label, double rate, double seconds) {
+// 1: 32 clients, each submitting a Poisson gap of `pause_ms` after its last answer, 100
+// submissions each, from one driver thread (submit_load.hpp); then the queue drains.
+void paced_submissions(const Server& s, const char* label, double pause_ms) {
   auto c0 = s.client();
   const std::string mesh = small_mesh(c0);
-  const int n = static_cast<int>(rate * seconds), threads = 16;
-  std::vector<double> ms(static_cast<size_t>(n));
-  std::atomic<int> failed{0};
-  const auto t0 = Clock::now() + std::chrono::milliseconds(200);
-  std::vector<std::thread> pool;
-  for (int t = 0; t < threads; ++t)
-    pool.emplace_back([&, t] {
-      auto c = s.client();
-      for (int k = t; k < n; k += threads) {
-        std::this_thread::sleep_until(t0 + std::chrono::duration<double>(k / rate));
-        const auto sent = Clock::now();
-        try {
-          (void)c.submit(small_map(mesh));
-        } catch (const std::exception&) {
-          ++failed;
-        }
-        ms[static_cast<size_t>(k)] = ms_since(sent);
-      }
-    });
-  for (auto& th : pool) th.join();
-  const double wall = std::chrono::duration<double>(Clock::now() - t0).count();
-  std::printf("%-10s SubmitJob at %.0f/s for %.0f s: %d sent in %.2f s (%.0f/s), %d failed; p50 %.2f ms, p99 %.2f ms, "
-              "max %.2f ms\n",
-              label, rate, seconds, n, wall, n / wall, failed.load(), at(ms, 0.5), at(ms, 0.99), at(ms, 1.0));
-  // Let the queue drain before the next measurement.
+  double wall = 0;
+  const std::vector<double> ms = brenier::bench::submit_with_driver(s.address, mesh, 32, 100, pause_ms, wall);
+  std::printf("%-10s SubmitJob, 32 clients each every %.0f ms (Poisson): %zu in %.2f s (%.0f/s); p50 %.2f ms, "
+              "p99 %.2f ms, max %.2f ms\n",
+              label, pause_ms, ms.size(), wall, static_cast<double>(ms.size()) / wall, at(ms, 0.5), at(ms, 0.99), at(ms, 1.0));
   for (int k = 0; k < 6000; ++k) {
     pb::ListJobsRequest r;
     r.set_state(pb::QUEUED);
@@ -153,11 +135,11 @@ void takeover(const std::string& brenierd, const std::string& data, const std::s
 
 int main(int argc, char** argv) {
   if (argc < 3) {
-    std::fprintf(stderr, "usage: %s BRENIERD POSTGRES_SH [RATE] [SECONDS]\n", argv[0]);
+    std::fprintf(stderr, "usage: %s BRENIERD POSTGRES_SH [PAUSE_MS]\n", argv[0]);
     return 2;
   }
   const std::string brenierd = argv[1], pg_sh = argv[2];
-  const double rate = argc > 3 ? std::atof(argv[3]) : 300, seconds = argc > 4 ? std::atof(argv[4]) : 10;
+  const double pause_ms = argc > 3 ? std::atof(argv[3]) : 85;
   const std::string work = std::filesystem::temp_directory_path().string() + "/bench_replicas";
   std::filesystem::create_directories(work);
   const std::string state = work + "/pg/url";
@@ -170,17 +152,17 @@ int main(int argc, char** argv) {
     std::ifstream in(state);
     std::string admin;
     in >> admin;
-    const std::vector<std::string> busy = {"--workers", "2", "--queue", "100000"};
+    const std::vector<std::string> busy = {"--queue", "100000"};
     {
       Server s(brenierd, work + "/sqlite", busy);
-      paced_submissions(s, "SQLite", rate, seconds);
+      paced_submissions(s, "SQLite", pause_ms);
       end_to_end(s, "SQLite");
     }
     {
       std::vector<std::string> flags = busy;
       flags.insert(flags.end(), {"--database", create_database(admin, "bench_submit")});
       Server s(brenierd, work + "/postgres", flags);
-      paced_submissions(s, "PostgreSQL", rate, seconds);
+      paced_submissions(s, "PostgreSQL", pause_ms);
       end_to_end(s, "PostgreSQL");
     }
     for (const double lease : {5.0, 10.0, 30.0})

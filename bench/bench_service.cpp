@@ -28,6 +28,7 @@
 #include <grpcpp/grpcpp.h>
 
 #include "child_process.hpp"
+#include "submit_load.hpp"
 #include "client.hpp"
 #include "mesh/io.hpp"
 #include "mesh/shapes.hpp"
@@ -137,64 +138,8 @@ int main(int argc, char** argv) {
     Server s(brenierd, work + "/data2", flags);
     auto c0 = s.client();
     const std::string id = upload_small(c0);
-    std::vector<std::unique_ptr<pb::Brenier::Stub>> stubs;
-    for (int t = 0; t < clients; ++t) {
-      grpc::ChannelArguments args;
-      args.SetInt(GRPC_ARG_USE_LOCAL_SUBCHANNEL_POOL, 1);
-      stubs.push_back(pb::Brenier::NewStub(grpc::CreateCustomChannel(s.address, grpc::InsecureChannelCredentials(), args)));
-      grpc::ClientContext ctx;
-      pb::GetMeshRequest r;
-      r.set_id(id);
-      pb::Mesh m;
-      if (!stubs.back()->GetMesh(&ctx, r, &m).ok()) throw std::runtime_error("GetMesh failed");  // connected first
-    }
-    struct Call {
-      grpc::ClientContext ctx;
-      pb::SubmitJobRequest req;
-      pb::Job job;
-      Clock::time_point sent;
-    };
-    std::mutex mu;
-    std::condition_variable cv;
-    using Due = std::pair<Clock::time_point, int>;
-    std::priority_queue<Due, std::vector<Due>, std::greater<Due>> due;  // (when, client)
-    std::vector<int> sent(clients, 0);
-    std::vector<double> lat;
-    int done = 0, failed = 0;
-    std::mt19937 rng(7);
-    std::exponential_distribution<double> gap(1.0 / std::max(pause_ms, 1e-9));
-    auto after_gap = [&] {
-      return Clock::now() + std::chrono::microseconds(pause_ms > 0 ? static_cast<int64_t>(gap(rng) * 1000) : 0);
-    };
-    const auto t0 = Clock::now();
-    for (int t = 0; t < clients; ++t) due.push({after_gap(), t});
-    std::unique_lock<std::mutex> lock(mu);
-    while (done < clients * 50) {
-      if (due.empty() || due.top().first > Clock::now()) {
-        if (due.empty()) cv.wait(lock);
-        else cv.wait_until(lock, due.top().first);
-        continue;
-      }
-      const int t = due.top().second;
-      due.pop();
-      ++sent[t];
-      auto* call = new Call;
-      call->req.mutable_map()->set_mesh(id);
-      call->sent = Clock::now();
-      stubs[t]->async()->SubmitJob(&call->ctx, &call->req, &call->job, [&, call, t](grpc::Status st) {
-        const double ms = since(call->sent) * 1e3;
-        delete call;
-        std::lock_guard<std::mutex> g(mu);
-        lat.push_back(ms);
-        failed += st.ok() ? 0 : 1;
-        ++done;
-        if (sent[t] < 50) due.push({after_gap(), t});
-        cv.notify_one();
-      });
-    }
-    lock.unlock();
-    const double wall = since(t0);
-    if (failed) throw std::runtime_error("submissions failed");
+    double wall = 0;
+    const std::vector<double> lat = brenier::bench::submit_with_driver(s.address, id, clients, 50, pause_ms, wall);
     report("submit, one driver thread", clients, what, wall, lat);
   };
   submit_latency_async(32, 100, {"--queue", "100000"}, "each every 0.1 s on average (Poisson): 320 submissions/s");

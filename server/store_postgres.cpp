@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <atomic>
 #include <cstring>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <random>
@@ -84,6 +85,9 @@ class PostgresStore final : public Store {
   struct Connection {
     PGconn* conn = nullptr;
     std::mutex mutex;
+    // Statements prepared on this connection, by the address of their SQL (string literals
+    // only): parsed and planned once, not at every call.
+    std::map<const char*, std::string> prepared;
     ~Connection() { PQfinish(conn); }
   };
   /// A connection of the pool, locked for the caller, reset first if it broke.
@@ -184,6 +188,7 @@ PostgresStore::Lease::Lease(PostgresStore& s) : s_(s) {
   if (!c_->conn || PQstatus(c_->conn) != CONNECTION_OK) {
     PQfinish(c_->conn);
     c_->conn = nullptr;
+    c_->prepared.clear();
     c_->conn = s.connect();
   }
 }
@@ -197,9 +202,25 @@ Result PostgresStore::Lease::run(const char* sql, const std::vector<Param>& para
     formats.push_back(p.binary ? 1 : 0);
   }
   // Without parameters, the simple protocol: it takes several statements (a migration step).
-  PGresult* r = params.empty() ? PQexec(c_->conn, sql)
-                               : PQexecParams(c_->conn, sql, static_cast<int>(params.size()), nullptr, values.data(),
-                                              lengths.data(), formats.data(), 0);
+  // With them, a statement prepared on this connection at its first use.
+  PGresult* r = nullptr;
+  if (params.empty()) {
+    r = PQexec(c_->conn, sql);
+  } else {
+    auto it = c_->prepared.find(sql);
+    if (it == c_->prepared.end()) {
+      const std::string name = "s" + std::to_string(c_->prepared.size());
+      PGresult* p = PQprepare(c_->conn, name.c_str(), sql, static_cast<int>(params.size()), nullptr);
+      const bool ok = PQresultStatus(p) == PGRES_COMMAND_OK;
+      PQclear(p);
+      if (ok) it = c_->prepared.emplace(sql, name).first;
+    }
+    r = it != c_->prepared.end()
+            ? PQexecPrepared(c_->conn, it->second.c_str(), static_cast<int>(params.size()), values.data(),
+                             lengths.data(), formats.data(), 0)
+            : PQexecParams(c_->conn, sql, static_cast<int>(params.size()), nullptr, values.data(), lengths.data(),
+                           formats.data(), 0);  // the preparation failed: this reports why
+  }
   const ExecStatusType status = PQresultStatus(r);
   if (status == PGRES_COMMAND_OK || status == PGRES_TUPLES_OK) return Result(r);
   const std::string why = r ? PQresultErrorMessage(r) : PQerrorMessage(c_->conn);
@@ -365,29 +386,41 @@ bool PostgresStore::delete_mesh(const std::string& tenant, const std::string& id
 
 pb::Job PostgresStore::insert_job(const std::string& tenant, const pb::Job& job, bool& inserted, int max_unfinished) {
   Lease l(*this);
-  // The tenant's jobs are counted and the job inserted under the tenant's lock (held to the
-  // commit): submissions to two replicas cannot both take the last place of a quota, nor
-  // both insert one request_id.
+  auto earlier = [&]() -> std::optional<pb::Job> {
+    if (job.request_id().empty()) return std::nullopt;
+    const Result r = l.run("SELECT record FROM jobs WHERE tenant = $1 AND request_id = $2",
+                           {text(tenant), text(job.request_id())});
+    if (r.rows() == 0) return std::nullopt;
+    return parse<pb::Job>(r.bytea(0, 0));
+  };
+  auto insert = [&] {
+    // A request_id already taken (by a submission to another replica meanwhile) inserts nothing.
+    return l.run("INSERT INTO jobs (id, tenant, request_id, state, record, owner, lease_until) "
+                 "VALUES ($1, $2, $3, $4, $5, $6, " BRENIER_PG_NOW_MS " + $7) "
+                 "ON CONFLICT (tenant, request_id) WHERE request_id <> '' DO NOTHING",
+                 {text(job.id()), text(tenant), text(job.request_id()), num(job.state()),
+                  record(job.SerializeAsString()), text(replica_), num(lease_ms_)})
+               .affected() == 1;
+  };
+  if (max_unfinished <= 0) {  // one statement: the unique index makes request_id idempotent
+    inserted = insert();
+    if (inserted) return job;
+    if (std::optional<pb::Job> e = earlier()) return *e;
+    fail(ErrorCode::kInternal, "database: job " + job.id() + " was neither inserted nor found");
+  }
+  // With a quota: the tenant's jobs are counted and the job inserted under the tenant's lock
+  // (held to the commit), so submissions to two replicas cannot both take the last place.
   return l.transaction([&] {
     l.run("SELECT pg_advisory_xact_lock($1, hashtext($2))", {num(kTenantJobsLock), text(tenant)});
-    if (!job.request_id().empty()) {
-      const Result earlier = l.run("SELECT record FROM jobs WHERE tenant = $1 AND request_id = $2",
-                                   {text(tenant), text(job.request_id())});
-      if (earlier.rows()) {
-        inserted = false;
-        return parse<pb::Job>(earlier.bytea(0, 0));
-      }
+    if (std::optional<pb::Job> e = earlier()) {
+      inserted = false;
+      return *e;
     }
-    if (max_unfinished > 0) {
-      const Result n = l.run("SELECT COUNT(*) FROM jobs WHERE tenant = $1 AND state IN ($2, $3)",
-                             {text(tenant), num(pb::QUEUED), num(pb::RUNNING)});
-      if (n.integer(0, 0) >= max_unfinished) rows::over_job_quota(n.integer(0, 0));
-    }
-    l.run("INSERT INTO jobs (id, tenant, request_id, state, record, owner, lease_until) "
-          "VALUES ($1, $2, $3, $4, $5, $6, " BRENIER_PG_NOW_MS " + $7)",
-          {text(job.id()), text(tenant), text(job.request_id()), num(job.state()), record(job.SerializeAsString()),
-           text(replica_), num(lease_ms_)});
-    inserted = true;
+    const Result n = l.run("SELECT COUNT(*) FROM jobs WHERE tenant = $1 AND state IN ($2, $3)",
+                           {text(tenant), num(pb::QUEUED), num(pb::RUNNING)});
+    if (n.integer(0, 0) >= max_unfinished) rows::over_job_quota(n.integer(0, 0));
+    inserted = insert();
+    if (!inserted) fail(ErrorCode::kInternal, "database: job " + job.id() + " was not inserted");
     return job;
   });
 }
