@@ -805,7 +805,7 @@ TEST(Service, SigtermAfterTheGracePeriodRequeuesTheRunningJob) {
   EXPECT_EQ(server.stop(), 0);
   // The interrupted job ends at its next check, within a Newton iteration: over a second each
   // under the sanitizers on a loaded machine (5 s was exceeded by 0.3 s there).
-  EXPECT_LT(std::chrono::duration<double>(Clock::now() - t0).count(), 10.0);
+  EXPECT_LT(std::chrono::duration<double>(Clock::now() - t0).count(), 5.0 * kSlowdown);
   server.start({"--workers", "1"});
   Client c2 = server.client();
   const pb::Job j = c2.watch(id);
@@ -1250,7 +1250,9 @@ TEST(Service, AnotherReplicaWatchesAndCancelsAJob) {
   std::printf("watch through another replica: %zu events; cancel through it: the job stopped %.2f s after the call\n",
               events.size(), stop);
   EXPECT_EQ(cancelled.state(), pb::CANCELLED);
-  EXPECT_LT(stop, 5.0);  // within 2 s by design (bench/RESULTS.md); slack for slow builds
+  // About a second by design (bench/RESULTS.md), plus the Newton iteration under way, which
+  // looks for the cancellation when it ends: over 10 s for this mesh under ASan.
+  EXPECT_LT(stop, kSlowdown > 1 ? 60.0 : 5.0);
   EXPECT_EQ(ca.get(second).state(), pb::CANCELLED);
 }
 
