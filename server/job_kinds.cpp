@@ -13,6 +13,7 @@
 
 #include "common/error.hpp"
 #include "common/parallel.hpp"
+#include "jobs/matrix_work.hpp"
 #include "spec.hpp"
 
 namespace brenier::server {
@@ -176,18 +177,14 @@ pb::JobResult run_distance_job(JobContext& c, const pb::DistanceSpec& s) {
   return out;
 }
 
-// A matrix as groups of tasks on the shared pool: every shape once (cached by content hash
-// under DATA/shapes, reused by later jobs), then tiles of pairs, each kept in a work
-// directory as it finishes so that a run interrupted by a restart redoes only the missing
-// tiles; the tiles are assembled as `brenier-compute merge` does.
-pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
-  const auto t0 = std::chrono::steady_clock::now();
-  const std::string& job_id = c.live.job.id();
+// The tiles of a matrix on the shared pool: every shape once (cached by content hash under
+// DATA/shapes, reused by later jobs), then tiles of pairs, each kept in the work directory as
+// it finishes so that a run interrupted by a restart redoes only the missing tiles.
+std::vector<distance::MatrixTile> local_tiles(JobContext& c, const pb::MatrixSpec& s, const std::string& work) {
   const jobs::MatrixRequest request = spec::from_proto(s);
   const jobs::ShapeRequest& r = request.shape;
   const int n = s.meshes_size();
   std::vector<distance::ShapeInput> in(n);
-  std::map<std::string, int> names;
   c.scheduler.run_group(n, [&](int k) {
     c.check();
     pb::Mesh rec;
@@ -195,9 +192,10 @@ pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
     in[k] = jobs::shape_input(cm, rec.name(), rec.name(), r,
                               request.markers.empty() ? jobs::DiskMarkers{} : request.markers[k]);
   });
-  for (int k = 0; k < n; ++k) ++names[in[k].name];
-  for (int k = 0; k < n; ++k)
-    if (names[in[k].name] > 1) in[k].name.append("#").append(s.meshes(k), 0, 12);
+  std::vector<std::string> names(n);
+  for (int k = 0; k < n; ++k) names[k] = in[k].name;
+  jobs::unique_names(names, {s.meshes().begin(), s.meshes().end()});
+  for (int k = 0; k < n; ++k) in[k].name = names[k];
   const std::string cache = c.store.dir() + "/shapes";
   fs::create_directories(cache);
   std::mutex progress_mutex;
@@ -212,8 +210,6 @@ pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
   });
   const int pairs = n * (n - 1) / 2;
   const int tiles = std::max(1, std::min(pairs, 4 * c.scheduler.workers()));
-  const std::string work = c.store.dir() + "/work/" + job_id;
-  fs::create_directories(work);
   distance::MatrixOptions mo;
   mo.method = r.method;
   mo.wasserstein = jobs::wasserstein_options(r);
@@ -249,6 +245,53 @@ pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
     c.sink()(jobs::Progress{"pairs", 0.5 + 0.5 * tiles_done / tiles, tiles_done, 0});
   });
   c.check();
+  return done;
+}
+
+// The tiles of a matrix as one Slurm array (slurm.hpp): the work file names the tenant's
+// meshes by their blobs on the shared --data volume, with the names and options this server
+// would use itself, so that the tiles are the local pool's bit for bit.
+std::vector<distance::MatrixTile> slurm_tiles(JobContext& c, const pb::MatrixSpec& s, const std::string& work) {
+  jobs::MatrixWork w;
+  w.request = spec::from_proto(s);
+  w.cache = c.store.dir() + "/shapes";
+  const int n = s.meshes_size();
+  std::vector<std::string> names(n);
+  for (int k = 0; k < n; ++k) {
+    const auto m = c.store.get_mesh(c.tenant, s.meshes(k));
+    if (!m || !c.store.has_blob(Store::Blob::kMesh, s.meshes(k))) invalid("mesh " + s.meshes(k) + " was deleted");
+    names[k] = m->name();
+    w.shapes.push_back({"", fs::absolute(c.store.blob_path(Store::Blob::kMesh, s.meshes(k))).string(), m->format()});
+  }
+  jobs::unique_names(names, {s.meshes().begin(), s.meshes().end()});
+  for (int k = 0; k < n; ++k) w.shapes[k].name = names[k];
+  w.tiles = slurm_tile_count(c.executor.slurm, n * (n - 1) / 2);
+  fs::create_directories(w.cache);
+  const std::string work_file = work + "/matrix-work.json";
+  if (!fs::exists(work_file)) jobs::write_matrix_work(w, work_file);
+  else w.tiles = jobs::read_matrix_work(work_file).tiles;  // a run re-attaching keeps the split
+  SlurmRunHooks hooks;
+  hooks.go = [&c] {
+    if (c.live.cancel) return SlurmRunHooks::Go::kCancel;
+    return c.live.interrupted ? SlurmRunHooks::Go::kLeave : SlurmRunHooks::Go::kOn;
+  };
+  hooks.progress = [&c](int done, int total, const std::string& stage) {
+    c.sink()(jobs::Progress{stage, static_cast<double>(done) / total, done, 0});
+  };
+  return run_tiles_on_slurm(c.executor.slurm, c.live.job.id(), fs::absolute(work).string(), w.tiles, hooks);
+}
+
+// A matrix job: its tiles from the executor, assembled as `brenier-compute merge` does.
+pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const jobs::ShapeRequest r = spec::from_proto(s).shape;
+  const int n = s.meshes_size();
+  const int pairs = n * (n - 1) / 2;
+  const std::string work = c.store.dir() + "/work/" + c.live.job.id();
+  fs::create_directories(work);
+  const std::vector<distance::MatrixTile> done =
+      c.executor.kind == Executor::kSlurm ? slurm_tiles(c, s, work) : local_tiles(c, s, work);
+  const int tiles = static_cast<int>(done.size());
   const Eigen::MatrixXd d = distance::assemble(done);  // checks the tiles belong together
   const std::vector<std::string>& nm = done.front().names;
   nlohmann::json failed = nlohmann::json::array();
@@ -271,6 +314,7 @@ pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
                            {"meshes", std::vector<std::string>(s.meshes().begin(), s.meshes().end())},
                            {"pairs", pairs},
                            {"tiles", tiles},
+                           {"executor", c.executor.kind == Executor::kSlurm ? "slurm" : "local"},
                            {"not_converged", failed},
                            {"seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
   *out.add_artifacts() = artifact(c.store, "report", "application/json", "matrix.json", report.dump(2));

@@ -33,6 +33,7 @@ struct JobContext {
   LiveJob& live;
   std::string tenant;
   std::function<void(const pb::JobEvent&)> publish;
+  const ExecutorOptions& executor;  // where matrix tiles run
 
   bool keep_going() const { return !live.cancel && !live.interrupted; }
   /// Progress of the core's loops as RUNNING events (and the live job's stage); false once

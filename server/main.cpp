@@ -10,6 +10,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <atomic>
 #include <condition_variable>
@@ -21,6 +22,7 @@
 #include <unistd.h>
 
 #include "auth.hpp"
+#include "command.hpp"
 #include "common/error.hpp"
 #include "common/parallel.hpp"
 #include "process.hpp"
@@ -97,7 +99,32 @@ struct Flags {
   std::string tokens, tls_cert, tls_key, tls_client_ca, port_file;
   double grace = 30;
   std::string log_level = "info";
+  std::string executor = "local", slurm_args, slurm_compute;
+  int slurm_tile_pairs = 500;
+  double slurm_poll_seconds = 2;
 };
+
+// Where matrix tiles run. Slurm's nodes run brenier-compute from the same path as this
+// server's (the one installed beside brenierd unless --slurm-compute says otherwise).
+brenier::server::ExecutorOptions executor_options(const Flags& f) {
+  brenier::server::ExecutorOptions e;
+  if (f.executor != "slurm") return e;
+  e.kind = brenier::server::Executor::kSlurm;
+  e.slurm.args = brenier::server::split_arguments(f.slurm_args);
+  e.slurm.compute = f.slurm_compute;
+  if (e.slurm.compute.empty()) {
+    std::error_code ec;
+    e.slurm.compute = (std::filesystem::read_symlink("/proc/self/exe", ec).parent_path() / "brenier-compute").string();
+  }
+  if (::access(e.slurm.compute.c_str(), X_OK) != 0)
+    brenier::invalid("--executor slurm: " + e.slurm.compute + " is not an executable brenier-compute (--slurm-compute)");
+  e.slurm.tile_pairs = f.slurm_tile_pairs;
+  e.slurm.poll_seconds = f.slurm_poll_seconds;
+  const brenier::server::CommandResult r = brenier::server::run_command({"sbatch", "--version"}, 30);
+  if (!r.ok()) spdlog::warn("--executor slurm: sbatch does not run here ({}); matrix jobs will fail", r.summary());
+  else spdlog::info("matrix tiles run on Slurm ({}), {} pairs per task", r.summary(), e.slurm.tile_pairs);
+  return e;
+}
 
 int serve(const Flags& f) {
   // Logs go to stderr (stdout stays free for whoever runs us), one line per event.
@@ -135,6 +162,7 @@ int serve(const Flags& f) {
   mo.min_free_bytes = f.min_free_mb << 20;
   mo.retention_seconds = f.retention_days * 86400;
   mo.lease_seconds = f.lease_seconds;
+  mo.executor = executor_options(f);
   brenier::server::Manager manager(store, mo);
   brenier::server::Service service(manager, std::move(auth),
                                   {.max_watches_per_tenant = f.max_watches, .max_uploads_per_tenant = f.max_uploads});
@@ -247,6 +275,14 @@ int main(int argc, char** argv) {
   app.add_option("--tls-client-ca", f.tls_client_ca, "PEM CA: require client certificates signed by it");
   app.add_option("--grace", f.grace, "seconds running jobs get to finish on SIGTERM")->check(CLI::Range(0.0, 86400.0));
   app.add_option("--port-file", f.port_file, "write the port listened on to this file");
+  app.add_option("--executor", f.executor, "where matrix tiles run: local (the worker pool) or slurm (a job array)")
+      ->check(CLI::IsMember({"local", "slurm"}));
+  app.add_option("--slurm-args", f.slurm_args, "sbatch options of the arrays, e.g. \"--partition=cpu --time=4:00:00\"");
+  app.add_option("--slurm-compute", f.slurm_compute, "brenier-compute as the nodes run it (default: beside brenierd)");
+  app.add_option("--slurm-tile-pairs", f.slurm_tile_pairs, "pairs per array task (default 500: minutes of work)")
+      ->check(CLI::Range(1, 100000000));
+  app.add_option("--slurm-poll-seconds", f.slurm_poll_seconds, "how often squeue and the tiles are looked at")
+      ->check(CLI::Range(0.1, 600.0));
   app.add_option("--log-level", f.log_level, "trace, debug, info, warn, error")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error"}));
   try {

@@ -534,7 +534,7 @@ void Manager::run(const std::string& id) {
   publish(*l, state_event(job));
   spdlog::info("job {} ({}) started, attempt {}", id, job.kind(), job.attempts());
   const auto t0 = std::chrono::steady_clock::now();
-  JobContext c{store_, *scheduler_, *l, tenant, [&](const pb::JobEvent& e) { publish(*l, e); }};
+  JobContext c{store_, *scheduler_, *l, tenant, [&](const pb::JobEvent& e) { publish(*l, e); }, options_.executor};
   pb::JobResult result;
   std::optional<Error> error;
   bool requeue = false;

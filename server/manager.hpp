@@ -18,6 +18,7 @@
 #include "brenier/v1/brenier.pb.h"
 #include "common/error.hpp"
 #include "scheduler.hpp"
+#include "slurm.hpp"
 #include "store.hpp"
 
 namespace brenier::server {
@@ -33,6 +34,7 @@ struct ManagerOptions {
   int64_t min_free_bytes = int64_t{256} << 20;  // an upload that would leave less is refused
   double retention_seconds = 30 * 86400.0;     // finished jobs and their results (0: kept)
   double lease_seconds = 30;                   // a shared store: a job's lease without renewal
+  ExecutorOptions executor;                    // where matrix tiles run (local pool or Slurm)
 };
 
 /// One job's progress as it happens: the events since the job was (re)started, the latest

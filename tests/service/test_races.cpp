@@ -29,6 +29,13 @@ using namespace std::chrono_literals;
 
 namespace {
 
+ManagerOptions manager_options(int workers, int queue) {
+  ManagerOptions o;
+  o.workers = workers;
+  o.queue = queue;
+  return o;
+}
+
 struct Fixture : ::testing::Test {
   std::string dir;
   void SetUp() override {
@@ -72,7 +79,7 @@ pb::Job wait_terminal(Manager& m, const std::string& tenant, const std::string& 
 TEST_F(Fixture, WatchOfAJobFinishingMeanwhileEndsWithItsTerminalEvent) {
   const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
   Store& store = *owned;
-  Manager manager(store, {.workers = 1, .queue = 4});
+  Manager manager(store, manager_options(1, 4));
   Service service(manager, Auth());
   grpc::ServerBuilder builder;
   int port = 0;
@@ -117,7 +124,7 @@ TEST_F(Fixture, WatchOfAJobFinishingMeanwhileEndsWithItsTerminalEvent) {
 TEST_F(Fixture, UploadRacingADeleteNeverLeavesAMeshWithoutItsBytes) {
   const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
   Store& store = *owned;
-  Manager manager(store, {.workers = 1, .queue = 4});
+  Manager manager(store, manager_options(1, 4));
   const std::string bytes = disk_bytes(5);
   const pb::Mesh a = upload(manager, "alice", bytes);
   ASSERT_TRUE(store.has_blob(Store::Blob::kMesh, a.id()));
@@ -145,7 +152,7 @@ TEST_F(Fixture, UploadRacingADeleteNeverLeavesAMeshWithoutItsBytes) {
 TEST_F(Fixture, AMeshDeletedWhileAJobLoadsItFailsTheJobAsDeleted) {
   const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
   Store& store = *owned;
-  Manager manager(store, {.workers = 1, .queue = 4});
+  Manager manager(store, manager_options(1, 4));
   const pb::Mesh mesh = upload(manager, "alice", disk_bytes(5));
   bool deleted = false;
   test_hooks::arm(test_hooks::Point::kLoadAfterRow, [&] { deleted = store.delete_mesh("alice", mesh.id()); });
@@ -163,7 +170,7 @@ TEST_F(Fixture, AMeshDeletedWhileAJobLoadsItFailsTheJobAsDeleted) {
 TEST_F(Fixture, ASubmissionRefusedByAFullQueueLeavesNoJobBehind) {
   const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
   Store& store = *owned;
-  Manager manager(store, {.workers = 1, .queue = 1});
+  Manager manager(store, manager_options(1, 1));
   const pb::Mesh mesh = upload(manager, "", disk_bytes(5));
   // The worker holds the first job until released; the second fills the queue.
   std::promise<void> taken, release;
@@ -220,7 +227,7 @@ TEST_F(Fixture, TheStartSweepRemovesOnlyBlobsNothingNames) {
   {
     const std::unique_ptr<Store> owned = open_store(dir, brenier::test::test_database(dir));
   Store& store = *owned;
-    Manager manager(store, {.workers = 1, .queue = 4});
+    Manager manager(store, manager_options(1, 4));
     kept_mesh = upload(manager, "default", disk_bytes(4)).id();
     const pb::Job job = manager.submit("default", map_request(kept_mesh));
     const pb::Job done = wait_terminal(manager, "default", job.id(), 60s);

@@ -1,5 +1,7 @@
 // brenier-compute distance | matrix | merge | mds | knn: shape distances between surfaces,
 // distance matrices over datasets (in tiles for job arrays) and their analysis (sec. 4.4).
+#include <unistd.h>
+
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -14,6 +16,7 @@
 #include "common/parallel.hpp"
 #include "distance/analysis.hpp"
 #include "distance/matrix.hpp"
+#include "jobs/matrix_work.hpp"
 #include "mesh/geometry.hpp"
 #include "request_flags.hpp"
 
@@ -93,10 +96,53 @@ struct MatrixCommand {
   options::MatrixFlags flags;
   ReadFlags read;
   std::vector<std::string> files;
-  std::string output, tile, cache;
+  std::string output, tile, cache, work;
   int jobs = 0;
   bool progress = false, json = false;
 };
+
+// The shapes and the request of a matrix: from the files and flags, or from a matrix work
+// file written by brenierd (--work: a Slurm array task computing one of a job's tiles).
+struct MatrixInputs {
+  jobs::MatrixRequest request;
+  std::vector<distance::ShapeInput> shapes;
+  std::string cache;
+};
+
+MatrixInputs matrix_inputs(const MatrixCommand& o, int threads) {
+  MatrixInputs m;
+  if (!o.work.empty()) {
+    if (!o.files.empty()) invalid("give the meshes or --work, not both");
+    const jobs::MatrixWork w = jobs::read_matrix_work(o.work);
+    if (!o.tile.empty() && distance::parse_tile(o.tile).count != w.tiles)
+      invalid("--tile " + o.tile + " does not split the matrix as the work file does (" + std::to_string(w.tiles) +
+              " tiles)");
+    m.request = w.request;
+    m.shapes = jobs::matrix_inputs(w, threads);
+    m.cache = o.cache.empty() ? w.cache : o.cache;
+    return m;
+  }
+  if (o.files.size() < 2) invalid("a distance matrix needs at least two meshes (or --work FILE)");
+  m.request = o.flags.resolve(o.files);
+  m.shapes.resize(o.files.size());
+  parallel_for(static_cast<int>(o.files.size()), threads, [&](int k) {
+    m.shapes[k] = o.read.load(o.files[k], m.request.shape,
+                              m.request.markers.empty() ? jobs::DiskMarkers{} : m.request.markers[k]);
+  });
+  unique_names(m.shapes, o.files);
+  m.cache = o.cache;
+  return m;
+}
+
+// A tile of an array with a cache: the task first prepares its share of the shapes (I, I+K,
+// I+2K, ...), so that the array's tasks prepare each shape about once between them instead
+// of every task preparing every shape its pairs need at the same moment.
+void prepare_share(const std::vector<distance::ShapeInput>& shapes, const distance::MatrixOptions& mo) {
+  std::vector<int> mine;
+  for (int i = mo.tile.index; i < static_cast<int>(shapes.size()); i += mo.tile.count) mine.push_back(i);
+  parallel_for(static_cast<int>(mine.size()), mo.jobs,
+               [&](int k) { distance::cached_shape(shapes[mine[k]], mo.cache_dir, mo.solver_progress); });
+}
 
 int run_matrix(const MatrixCommand& o) {
   const auto t0 = std::chrono::steady_clock::now();
@@ -104,18 +150,15 @@ int run_matrix(const MatrixCommand& o) {
   const std::filesystem::path folder = std::filesystem::path(o.output).parent_path();
   if (!folder.empty() && !std::filesystem::is_directory(folder))
     invalid("cannot write " + o.output + ": the folder " + folder.string() + " does not exist");
-  const jobs::MatrixRequest request = o.flags.resolve(o.files);
   distance::MatrixOptions mo;
-  mo.method = request.shape.method;
-  mo.wasserstein = jobs::wasserstein_options(request.shape);
   mo.jobs = o.jobs > 0 ? o.jobs : hardware_threads();
-  mo.cache_dir = o.cache;
+  const MatrixInputs in = matrix_inputs(o, mo.jobs);
+  const std::vector<distance::ShapeInput>& shapes = in.shapes;
+  mo.method = in.request.shape.method;
+  mo.wasserstein = jobs::wasserstein_options(in.request.shape);
+  mo.cache_dir = in.cache;
   if (!o.tile.empty()) mo.tile = distance::parse_tile(o.tile);
-  std::vector<distance::ShapeInput> shapes(o.files.size());
-  parallel_for(static_cast<int>(o.files.size()), mo.jobs, [&](int k) {
-    shapes[k] = o.read.load(o.files[k], request.shape, request.markers.empty() ? jobs::DiskMarkers{} : request.markers[k]);
-  });
-  unique_names(shapes, o.files);
+  if (!o.tile.empty() && !mo.cache_dir.empty()) prepare_share(shapes, mo);
   if (o.progress)
     mo.progress = [](const std::string& stage, int done, int total) {
       if (done == total || done % std::max(1, total / 20) == 0)
@@ -126,7 +169,10 @@ int run_matrix(const MatrixCommand& o) {
   for (const distance::PairEntry& e : tile.pairs)
     if (!e.result.converged) failed.push_back("(" + tile.names[e.i] + ", " + tile.names[e.j] + ")");
   if (!o.tile.empty()) {
-    distance::write_tile(tile, o.output);
+    // Whole or absent: whoever watches for tile files (brenierd, a merge) never reads half of one.
+    const std::string tmp = o.output + ".tmp." + std::to_string(::getpid());
+    distance::write_tile(tile, tmp);
+    std::filesystem::rename(tmp, o.output);
   } else {
     distance::write_matrix(o.output, tile.names, distance::assemble({tile}), tile.method);
   }
@@ -264,7 +310,7 @@ void add_distance(CLI::App& app, Action& action) {
   {
     auto o = std::make_shared<MatrixCommand>();
     CLI::App* cmd = app.add_subcommand("matrix", "distance matrix over a dataset (or one tile of it)");
-    cmd->add_option("files", o->files, "meshes")->required();
+    cmd->add_option("files", o->files, "meshes (or --work)");
     cmd->add_option("-o,--output", o->output, "matrix file (.csv, .npy, .json); with --tile, the tile file")
         ->required();
     o->flags.add_to(cmd);
@@ -272,6 +318,7 @@ void add_distance(CLI::App& app, Action& action) {
     cmd->add_option("--jobs", o->jobs, "worker threads (default: the number of cores)")->check(CLI::Range(1, 1024));
     cmd->add_option("--tile", o->tile, "compute only tile I of K (0-based, e.g. 3/16) and write it for merge");
     cmd->add_option("--cache", o->cache, "directory keeping each shape's maps by content hash");
+    cmd->add_option("--work", o->work, "a matrix job's work file written by brenierd (shapes, options, cache)");
     cmd->add_flag("--progress", o->progress, "report progress on stderr");
     cmd->add_flag("--json", o->json, "print a JSON summary");
     cmd->callback([o, &action] { action = [o] { return run_matrix(*o); }; });
