@@ -376,6 +376,23 @@ void add_job_commands(CLI::App& app, const Global& g, Action& action) {
   });
 }
 
+// health: the server's grpc.health.v1 status (a container's HEALTHCHECK, a probe by hand).
+void add_health(CLI::App& app, const Global& g, Action& action) {
+  auto service = std::make_shared<std::string>();
+  auto* cmd = app.add_subcommand("health", "ask the server's health (exit 0 when SERVING)");
+  cmd->add_option("--service", *service, "a service's status instead of the whole server's");
+  cmd->callback([&g, &action, service] {
+    action = [&g, service](Client& c) {
+      const std::string status = c.health(*service);
+      if (g.json)
+        std::cout << nlohmann::json{{"server", c.server()}, {"status", status}}.dump() << std::endl;
+      else
+        std::printf("%s\n", status.c_str());
+      return status == "SERVING" ? kOk : kFailure;
+    };
+  });
+}
+
 // The exit code of an error: the server's status, or one of our own request checks.
 int error_exit(grpc::StatusCode code) {
   switch (code) {
@@ -411,6 +428,7 @@ int main(int argc, char** argv) {
   add_matrix(app, g, action);
   add_mesh_commands(app, g, action);
   add_job_commands(app, g, action);
+  add_health(app, g, action);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -1,5 +1,7 @@
 #include "client.hpp"
 
+#include "grpc/health/v1/health.grpc.pb.h"
+
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -60,6 +62,15 @@ std::unique_ptr<grpc::ClientContext> Client::context(bool deadline) const {
     c->set_deadline(std::chrono::system_clock::now() +
                     std::chrono::milliseconds(static_cast<int64_t>(options_.call_timeout * 1000)));
   return c;
+}
+
+std::string Client::health(const std::string& service) {
+  auto stub = grpc::health::v1::Health::NewStub(channel_);
+  grpc::health::v1::HealthCheckRequest r;
+  r.set_service(service);
+  grpc::health::v1::HealthCheckResponse a;
+  check(stub->Check(context().get(), r, &a));
+  return grpc::health::v1::HealthCheckResponse::ServingStatus_Name(a.status());
 }
 
 pb::Mesh Client::upload(const std::string& path, const std::string& name, const std::string& format) {

@@ -68,6 +68,10 @@ class Client {
   /// The same into a file (written whole, then renamed); returns its metadata.
   pb::Artifact download(const std::string& job_id, const std::string& path, const std::string& artifact = "");
 
+  /// The server's grpc.health.v1 status for `service` ("" : the whole server): "SERVING",
+  /// "NOT_SERVING", ... Throws Error (UNAVAILABLE when nothing answers).
+  std::string health(const std::string& service = "");
+
   pb::Brenier::Stub& stub() { return *stub_; }
   const std::string& server() const { return server_; }
 

@@ -19,6 +19,8 @@ PACKAGES=(
   libsqlite3-dev libssl-dev libcairo2-dev
   # The PostgreSQL store (brenierd --database), and the server its tests start (initdb, pg_ctl).
   libpq-dev postgresql-15
+  # The Slurm executor's tests start a real Slurm (munged, slurmctld, slurmd on loopback).
+  slurm-wlm munge
   libgtest-dev libgmock-dev googletest libbenchmark-dev
   python3
   # Tests: POT's exact EMD, the independent check of our Wasserstein distances.

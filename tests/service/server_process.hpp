@@ -16,7 +16,7 @@
 #include <vector>
 
 #include "client.hpp"
-#include "health.grpc.pb.h"
+#include "grpc/health/v1/health.grpc.pb.h"
 #include "test_database.hpp"
 
 namespace brenier::test {

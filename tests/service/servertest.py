@@ -60,10 +60,12 @@ def test_database(data):
 
 
 class Server:
-    def __init__(self, brenierd, work, *flags):
+    def __init__(self, brenierd, work, *flags, keep_data=False, env=None):
+        """keep_data: start on the data an earlier server left (a restart); env: its environment."""
         self.data = os.path.join(work, "data")
-        shutil.rmtree(self.data, ignore_errors=True)
-        database = test_database(self.data)
+        if not keep_data:
+            shutil.rmtree(self.data, ignore_errors=True)
+        database = None if keep_data else test_database(self.data)
         if database:
             print(f"brenierd on PostgreSQL: {database}", flush=True)
             flags = ("--database", database, *flags)
@@ -71,7 +73,7 @@ class Server:
         if os.path.exists(port_file):
             os.remove(port_file)
         self.proc = subprocess.Popen([brenierd, "--listen", "127.0.0.1:0", "--data", self.data, "--port-file", port_file,
-                                      "--log-level", "warn", *flags])
+                                      "--log-level", "warn", *flags], env=env)
         for _ in range(500):
             if os.path.exists(port_file):
                 with open(port_file) as f:

@@ -138,6 +138,9 @@ MatrixInputs matrix_inputs(const MatrixCommand& o, int threads) {
 // I+2K, ...), so that the array's tasks prepare each shape about once between them instead
 // of every task preparing every shape its pairs need at the same moment.
 void prepare_share(const std::vector<distance::ShapeInput>& shapes, const distance::MatrixOptions& mo) {
+  std::error_code ec;
+  std::filesystem::create_directories(mo.cache_dir, ec);
+  if (ec) invalid("cannot create the cache directory " + mo.cache_dir + ": " + ec.message());
   std::vector<int> mine;
   for (int i = mo.tile.index; i < static_cast<int>(shapes.size()); i += mo.tile.count) mine.push_back(i);
   parallel_for(static_cast<int>(mine.size()), mo.jobs,
