@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
 # Installs every build, test and demo dependency of brenier from Debian bookworm's
 # packages. Idempotent: when every package is already there it only checks and exits.
+# With --build: only what building needs (the container image's build stage).
 set -euo pipefail
 
-PACKAGES=(
+# What building brenier needs (the container image's build stage installs only these:
+# install-deps.sh --build).
+BUILD_PACKAGES=(
   build-essential cmake ninja-build pkg-config git ca-certificates
   libeigen3-dev libcgal-dev libgmp-dev libmpfr-dev libboost-dev
   libopenmesh-dev libsuitesparse-dev
@@ -17,8 +20,13 @@ PACKAGES=(
   libspdlog-dev libfmt-dev libcli11-dev nlohmann-json3-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libsqlite3-dev libssl-dev libcairo2-dev
-  # The PostgreSQL store (brenierd --database), and the server its tests start (initdb, pg_ctl).
-  libpq-dev postgresql-15
+  # The PostgreSQL store (brenierd --database).
+  libpq-dev
+)
+# What the tests, benchmarks and the demo need beside.
+TEST_PACKAGES=(
+  # The PostgreSQL the tests start (initdb, pg_ctl).
+  postgresql-15
   # The Slurm executor's tests start a real Slurm (munged, slurmctld, slurmd on loopback).
   slurm-wlm munge
   libgtest-dev libgmock-dev googletest libbenchmark-dev
@@ -35,6 +43,8 @@ PACKAGES=(
   # The lint test of function sizes (scripts/check-function-sizes.sh).
   universal-ctags
 )
+PACKAGES=("${BUILD_PACKAGES[@]}")
+[[ "${1:-}" == --build ]] || PACKAGES+=("${TEST_PACKAGES[@]}")
 
 missing=()
 for p in "${PACKAGES[@]}"; do

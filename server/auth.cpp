@@ -4,6 +4,7 @@
 #include <openssl/sha.h>
 #include <sys/stat.h>
 
+#include <cctype>
 #include <cstdio>
 #include <fstream>
 #include <sstream>
@@ -46,6 +47,12 @@ Auth Auth::from_file(const std::string& path) {
     if (!(ss >> tenant) || (ss >> extra && extra[0] != '#'))
       invalid(path + ":" + std::to_string(n) + ": expected 'TOKEN TENANT'");
     if (token.size() < 16) invalid(path + ":" + std::to_string(n) + ": tokens must have at least 16 characters");
+    // No credential ships with brenier: the examples' placeholders are refused, not served.
+    std::string lower = token;
+    for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    if (lower.find("replace-me") != std::string::npos || lower.find("change-me") != std::string::npos)
+      invalid(path + ":" + std::to_string(n) +
+              ": the token is the documented placeholder; put a secret of your own (openssl rand -hex 32)");
     const std::string d = digest(token);
     for (const Entry& e : a.tenants_)
       if (e.digest == d) invalid(path + ":" + std::to_string(n) + ": the token is given twice");

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <functional>
+#include <string>
 
 namespace brenier {
 
@@ -21,8 +22,17 @@ void parallel_for(int n, int workers, const std::function<void(int)>& task);
 /// every user of CHOLMOD calls it first. A no-op under another BLAS.
 void single_threaded_blas();
 
-/// The number of hardware threads (at least 1).
+/// The CPUs this process may use, at least 1: the CPUs of its affinity mask (taskset,
+/// cpusets, Slurm's task binding), capped by its cgroup's CPU quota rounded up (a container's
+/// or a Kubernetes pod's CPU limit). Worker pools and OpenMP default to it, not to the
+/// host's cores.
 int hardware_threads();
+
+/// The CPU quota of the cgroup named in `proc_self_cgroup` (the text of /proc/self/cgroup),
+/// as whole CPUs rounded up, read under `cgroup_root` (/sys/fs/cgroup): cgroup v2's cpu.max
+/// or v1's cpu.cfs_quota_us / cpu.cfs_period_us, the smallest along the path to the root.
+/// 0 when there is no quota.
+int cgroup_cpu_limit(const std::string& proc_self_cgroup, const std::string& cgroup_root);
 
 
 }  // namespace brenier

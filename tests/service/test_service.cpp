@@ -839,6 +839,23 @@ TEST(Service, ShuttingDownRefusesNewWorkAndReportsNotServing) {
 
 // ---- security ----------------------------------------------------------------------------
 
+TEST(Service, TheShippedTokensExampleIsRefused) {
+  // deploy/tokens.example, copied as a user would, private: still no usable credential.
+  const std::string data = temp_dir("svc-placeholder");
+  const std::string tokens = data + "-tokens.txt";
+  std::filesystem::copy_file(std::string(BRENIER_TEST_FIXTURES) + "/../../deploy/tokens.example", tokens,
+                             std::filesystem::copy_options::overwrite_existing);
+  std::filesystem::permissions(tokens, std::filesystem::perms(0600));
+  const std::string out = data + "-refused.txt";
+  const int rc = std::system((std::string(BRENIERD) + " --listen 127.0.0.1:0 --data " + data + " --tokens " + tokens +
+                              " 2> " + out).c_str());
+  EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << rc;
+  std::ifstream err(out);
+  const std::string text((std::istreambuf_iterator<char>(err)), {});
+  EXPECT_NE(text.find("the token is the documented placeholder"), std::string::npos) << text;
+  EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 1) << text;
+}
+
 TEST(Service, TenantsSeeOnlyTheirOwnMeshesAndJobs) {
   const std::string data = temp_dir("svc-tenants");
   const std::string tokens = data + "-tokens.txt";
