@@ -254,7 +254,7 @@ std::vector<distance::MatrixTile> local_tiles(JobContext& c, const pb::MatrixSpe
 std::vector<distance::MatrixTile> slurm_tiles(JobContext& c, const pb::MatrixSpec& s, const std::string& work) {
   jobs::MatrixWork w;
   w.request = spec::from_proto(s);
-  w.cache = c.store.dir() + "/shapes";
+  w.cache = fs::absolute(c.store.dir() + "/shapes").string();  // the tasks run in other folders
   const int n = s.meshes_size();
   std::vector<std::string> names(n);
   for (int k = 0; k < n; ++k) {
@@ -289,8 +289,16 @@ pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
   const int pairs = n * (n - 1) / 2;
   const std::string work = c.store.dir() + "/work/" + c.live.job.id();
   fs::create_directories(work);
-  const std::vector<distance::MatrixTile> done =
-      c.executor.kind == Executor::kSlurm ? slurm_tiles(c, s, work) : local_tiles(c, s, work);
+  std::vector<distance::MatrixTile> done;
+  try {
+    done = c.executor.kind == Executor::kSlurm ? slurm_tiles(c, s, work) : local_tiles(c, s, work);
+  } catch (const Error& e) {
+    // Cancelled by its client: nothing of it will be asked for again. (Interrupted by a
+    // shutdown, its finished tiles stay for the next run; failed, its logs stay for a look.)
+    std::error_code ec;
+    if (e.code() == ErrorCode::kCancelled && c.live.cancel) fs::remove_all(work, ec);
+    throw;
+  }
   const int tiles = static_cast<int>(done.size());
   const Eigen::MatrixXd d = distance::assemble(done);  // checks the tiles belong together
   const std::vector<std::string>& nm = done.front().names;

@@ -110,6 +110,7 @@ def test_cancel():
         w = cli(s, "watch", job)
         check("CANCELLED" in w.stdout, "the job ends CANCELLED: " + w.stdout.strip())
         check(squeue("--name=brenier-" + job) == [], "squeue shows none of its tasks once it is cancelled")
+        check(not os.path.exists(os.path.join(s.data, "work", job)), "the cancelled job's work folder is removed")
         check(cli(s, "health").stdout.strip() == "SERVING", "the server is SERVING after the cancel")
     finally:
         s.stop()
