@@ -3,6 +3,7 @@
 #include <openssl/crypto.h>
 #include <openssl/sha.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <cctype>
 #include <cstdio>
@@ -26,7 +27,11 @@ std::string digest(const std::string& token) {
 void require_private_file(const std::string& path, const char* what) {
   struct stat st {};
   if (::stat(path.c_str(), &st) != 0) invalid("cannot read the " + std::string(what) + " file " + path);
-  if ((st.st_mode & 077) != 0) {
+  // Private: no access for group or others. Or, for a file root owns (a Kubernetes Secret
+  // mounted with fsGroup, which makes it mode 0440 root:GROUP), readable by its group and no
+  // one else, as PostgreSQL allows for its keys.
+  const bool root_group_read = st.st_uid == 0 && ::geteuid() != 0 && (st.st_mode & 037) == 0;
+  if ((st.st_mode & 077) != 0 && !root_group_read) {
     char mode[8];
     std::snprintf(mode, sizeof mode, "%04o", static_cast<unsigned>(st.st_mode & 07777));
     invalid("the " + std::string(what) + " file " + path + " is open to group or others (mode " + mode +
