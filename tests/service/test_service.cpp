@@ -846,12 +846,8 @@ TEST(Service, TheShippedTokensExampleIsRefused) {
   std::filesystem::copy_file(std::string(BRENIER_TEST_FIXTURES) + "/../../deploy/tokens.example", tokens,
                              std::filesystem::copy_options::overwrite_existing);
   std::filesystem::permissions(tokens, std::filesystem::perms(0600));
-  const std::string out = data + "-refused.txt";
-  const int rc = std::system((std::string(BRENIERD) + " --listen 127.0.0.1:0 --data " + data + " --tokens " + tokens +
-                              " 2> " + out).c_str());
-  EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << rc;
-  std::ifstream err(out);
-  const std::string text((std::istreambuf_iterator<char>(err)), {});
+  const auto [rc, text] = run_brenierd(data, "--tokens " + tokens);
+  EXPECT_EQ(rc, 2) << text;
   EXPECT_NE(text.find("the token is the documented placeholder"), std::string::npos) << text;
   EXPECT_EQ(std::count(text.begin(), text.end(), '\n'), 1) << text;
 }
@@ -862,12 +858,8 @@ TEST(Service, TenantsSeeOnlyTheirOwnMeshesAndJobs) {
   std::ofstream(tokens) << "# token tenant\nalice-token-0123456789 alice\nbob-token-0123456789abc bob\n";
   // A tokens file others may read is refused, naming the fix.
   std::filesystem::permissions(tokens, std::filesystem::perms(0644));
-  const std::string out = data + "-refused.txt";
-  const int rc = std::system((std::string(BRENIERD) + " --listen 127.0.0.1:0 --data " + data + "-x --tokens " + tokens +
-                              " 2> " + out).c_str());
-  EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 2) << rc;
-  std::ifstream err(out);
-  const std::string line((std::istreambuf_iterator<char>(err)), {});
+  const auto [rc, line] = run_brenierd(data + "-x", "--tokens " + tokens);
+  EXPECT_EQ(rc, 2) << line;
   EXPECT_NE(line.find("open to group or others (mode 0644)"), std::string::npos) << line;
   EXPECT_NE(line.find("chmod 600"), std::string::npos) << line;
   std::filesystem::permissions(tokens, std::filesystem::perms(0600));
