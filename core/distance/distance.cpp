@@ -127,7 +127,7 @@ TransportCost transport_to(const Shape& dst, const omt::Progress& progress, omt:
 
 TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
                                     const omt::Progress& progress, Eigen::VectorXd& h) {
-  if (!src.surface || dst.sphere_sites.rows() != dst.vertices)
+  if (!src.surface || dst.sphere_sites.rows() != dst.mass.size())
     invalid("'" + src.name + "' or '" + dst.name + "' has no sphere image for the exact distance");
   omt::Points3 sites = dst.sphere_sites;
   for (Eigen::Index i = 0; i < sites.rows(); ++i) sites.row(i) = sites.row(i).cwiseProduct(flip.transpose());

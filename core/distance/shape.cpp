@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <fstream>
 #include <sstream>
+#include <unordered_map>
 #include <vector>
 
 #include "common/error.hpp"
@@ -48,12 +49,17 @@ Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> Quadrature::sphere_poi
 }
 
 std::string ShapeOptions::fingerprint() const {
-  char buf[256];
+  char buf[320];
   std::snprintf(buf, sizeof buf, "%s;center=%d;boundary=%d;ktol=%.17g;otol=%.17g;wtol=%.17g;ctol=%.17g;quad=%dx%d",
                 sphere ? "sphere" : "disk", center_vertex.value_or(-1), boundary_vertex.value_or(-1),
                 conformal_tolerance, omt_tolerance, transport_tolerance, cost_tolerance,
                 quadrature.rings, quadrature.angles);
-  return buf;
+  std::string out = buf;
+  if (sphere) {  // (the disk's keys stay as they were)
+    std::snprintf(buf, sizeof buf, ";merge=%.17g", merge_radius);
+    out += buf;
+  }
+  return out;
 }
 
 std::string shape_key(const mesh::TriMesh& m, const ShapeOptions& opt) {
@@ -87,7 +93,7 @@ double quantization_cost(const Shape& s, const TransportCost& q) {
 
 void attach_surface(Shape& s) {
   auto surface = std::make_shared<omt::SurfaceDensity>();
-  surface->vertices = s.sphere_sites;
+  surface->vertices = s.sphere_vertices;
   surface->faces = s.tri;
   surface->density = s.density;
   surface->check();
@@ -132,6 +138,16 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
   }
   E.col(2) = E.col(0).cross(E.col(1));
   const mesh::Vertices X = c.positions * E;  // rows E^T x: coordinates in the frame
+  // The vertex measure, with images closer than the merge radius as one site.
+  std::vector<int> site_of;
+  const omt::Points3 merged = merge_sphere_sites(X, opt.merge_radius, site_of);
+  const Eigen::VectorXd vertex_mass = s.mass;
+  s.mass = Eigen::VectorXd::Zero(merged.rows());
+  for (int v = 0; v < m.num_vertices(); ++v) {
+    s.mass[site_of[v]] += vertex_mass[v];
+    s.merge_shift = std::max(s.merge_shift, (X.row(v) - merged.row(site_of[v])).norm());
+  }
+  s.merged_vertices = m.num_vertices() - static_cast<int>(merged.rows());
   s.normalization = c.normalization + ", principal frame of the pushed-forward area (eigenvalues " +
                     std::to_string(eig.eigenvalues()[2]) + ", " + std::to_string(eig.eigenvalues()[1]) + ", " +
                     std::to_string(eig.eigenvalues()[0]) + ")";
@@ -142,11 +158,11 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
   // avoids the frame's axes and planes, where symmetric meshes put vertices.
   const Eigen::Vector3d pole = Eigen::Vector3d(1, 2, 3).normalized();
   const Eigen::Matrix3d R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
-  const mesh::Vertices Y = X * R.transpose();  // rows R x: the pole at +z
-  omt::Points sites(X.rows(), 2);
+  const omt::Points3 Y = merged * R.transpose();  // rows R x: the pole at +z
+  omt::Points sites(Y.rows(), 2);
   double nearest = 2;
-  for (Eigen::Index v = 0; v < X.rows(); ++v) {
-    nearest = std::min(nearest, (X.row(v).transpose() - pole).norm());
+  for (Eigen::Index v = 0; v < Y.rows(); ++v) {
+    nearest = std::min(nearest, (merged.row(v).transpose() - pole).norm());
     sites.row(v) << Y(v, 0) / (1 - Y(v, 2)), Y(v, 1) / (1 - Y(v, 2));
   }
   if (nearest < 1e-7)
@@ -154,7 +170,15 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
   omt::OmtOptions oopt;
   oopt.tolerance = opt.omt_tolerance;
   oopt.progress = progress;
-  const omt::OmtResult r = omt::transport_to_mesh_sites(m, omt::Domain::stereographic_sphere(), sites, s.mass, oopt);
+  const omt::OmtResult r = omt::solve_omt(omt::Domain::stereographic_sphere(), sites, s.mass, oopt);
+  if (!r.converged) {
+    char buf[240];
+    std::snprintf(buf, sizeof buf,
+                  ": the transport of the sphere onto the vertex measure did not converge (max relative cell-mass "
+                  "error %.2e after %d Newton iterations, vertex images merged within %.1e)",
+                  r.max_relative_error, r.iterations, opt.merge_radius);
+    fail(ErrorCode::kNotConverged, s.name + buf);
+  }
   s.sites = sites;
   s.h = r.h;
   s.omt_iterations = r.iterations;
@@ -168,11 +192,12 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
   }
   const std::vector<int> cell = omt::PowerDiagrams(omt::Domain::stereographic_sphere(), sites, false).locate(r.h, plane);
   s.sphere_samples.resize(q.rows(), 3);
-  for (Eigen::Index k = 0; k < q.rows(); ++k) s.sphere_samples.row(k) = X.row(cell[k]);
+  for (Eigen::Index k = 0; k < q.rows(); ++k) s.sphere_samples.row(k) = merged.row(cell[k]);
   // The exact distance's source measure: the surface's area (4 pi in all) on the flat
   // triangles of its sphere image, constant on each, and its quantization cost (the
   // shape's density onto its own vertices, solved as a pair's direction is).
-  s.sphere_sites = X;
+  s.sphere_sites = merged;
+  s.sphere_vertices = X;
   const Eigen::VectorXd area = mesh::face_areas(m) * (4 * M_PI / mesh::total_area(m));
   const Eigen::VectorXd image = mesh::face_areas(m.F, X);
   for (int f = 0; f < m.num_faces(); ++f)
@@ -186,6 +211,49 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
 }
 
 }  // namespace
+
+omt::Points3 merge_sphere_sites(const omt::Points3& X, double radius, std::vector<int>& site_of) {
+  if (!(radius >= 0) || !std::isfinite(radius)) invalid("the merge radius must be 0 or positive");
+  const Eigen::Index n = X.rows();
+  site_of.assign(n, -1);
+  std::vector<Eigen::Index> sites;
+  if (radius == 0) {
+    for (Eigen::Index v = 0; v < n; ++v) site_of[v] = static_cast<int>(v);
+    return X;
+  }
+  // Grid cells of side `radius`: a site within `radius` of x lies in one of the 27 cells
+  // around x's own.
+  auto cell_of = [radius](double t) { return static_cast<long long>(std::floor(t / radius)); };
+  auto key = [](long long i, long long j, long long k) {
+    return (static_cast<unsigned long long>(i) * 73856093ULL) ^ (static_cast<unsigned long long>(j) * 19349663ULL) ^
+           (static_cast<unsigned long long>(k) * 83492791ULL);
+  };
+  std::unordered_map<unsigned long long, std::vector<int>> grid;
+  for (Eigen::Index v = 0; v < n; ++v) {
+    const long long ci = cell_of(X(v, 0)), cj = cell_of(X(v, 1)), ck = cell_of(X(v, 2));
+    int found = -1;
+    for (long long di = -1; di <= 1 && found < 0; ++di)
+      for (long long dj = -1; dj <= 1 && found < 0; ++dj)
+        for (long long dk = -1; dk <= 1 && found < 0; ++dk) {
+          const auto it = grid.find(key(ci + di, cj + dj, ck + dk));
+          if (it == grid.end()) continue;
+          for (const int site : it->second)
+            if ((X.row(v) - X.row(sites[site])).norm() < radius) {
+              found = site;
+              break;
+            }
+        }
+    if (found < 0) {
+      found = static_cast<int>(sites.size());
+      sites.push_back(v);
+      grid[key(ci, cj, ck)].push_back(found);
+    }
+    site_of[v] = found;
+  }
+  omt::Points3 out(static_cast<Eigen::Index>(sites.size()), 3);
+  for (size_t k = 0; k < sites.size(); ++k) out.row(static_cast<Eigen::Index>(k)) = X.row(sites[k]);
+  return out;
+}
 
 Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const ShapeOptions& opt,
                     const omt::Progress& progress) {
@@ -271,7 +339,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
 
 namespace {
 
-constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '6'};
+constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '7'};
 
 struct Writer {
   std::ostream& os;
@@ -344,6 +412,8 @@ void save_shape(const Shape& s, const std::string& path) {
     w.pod(s.quantization);
     w.pod(s.transport_tolerance);
     w.pod(s.cost_tolerance);
+    w.pod(s.merged_vertices);
+    w.pod(s.merge_shift);
     w.mat(s.sites);
     w.mat(s.mass);
     w.mat(s.tri);
@@ -353,6 +423,7 @@ void save_shape(const Shape& s, const std::string& path) {
     w.mat(s.spectrum);
     w.mat(s.sphere_samples);
     w.mat(s.sphere_sites);
+    w.mat(s.sphere_vertices);
     os.write(kMagic, sizeof kMagic);  // a whole file ends as it begins
     if (!os.flush()) fail(ErrorCode::kResourceExhausted, "cannot write the cache file " + tmp);
   }
@@ -385,6 +456,8 @@ bool load_shape(const std::string& path, Shape& out) {
   r.pod(s.quantization);
   r.pod(s.transport_tolerance);
   r.pod(s.cost_tolerance);
+  r.pod(s.merged_vertices);
+  r.pod(s.merge_shift);
   r.mat(s.sites);
   r.mat(s.mass);
   r.mat(s.tri);
@@ -394,9 +467,14 @@ bool load_shape(const std::string& path, Shape& out) {
   r.mat(s.spectrum);
   r.mat(s.sphere_samples);
   r.mat(s.sphere_sites);
+  r.mat(s.sphere_vertices);
   if (!r.ok || !is.read(magic, 8) || !std::equal(magic, magic + 8, kMagic)) return false;
-  if (s.sites.rows() != s.vertices || s.mass.size() != s.vertices || s.tri.rows() != s.faces ||
-      s.density.size() != s.faces || (s.sphere && s.sphere_sites.rows() != s.vertices) || s.h.size() != s.vertices ||
+  // Sites: one per vertex on the disk; on the sphere, as many as the merge left.
+  const Eigen::Index nsites = s.sphere ? s.vertices - s.merged_vertices : s.vertices;
+  if (s.merged_vertices < 0 || (!s.sphere && s.merged_vertices != 0) || nsites < 1) return false;
+  if (s.sites.rows() != nsites || s.mass.size() != nsites || s.tri.rows() != s.faces ||
+      s.density.size() != s.faces || s.h.size() != nsites ||
+      (s.sphere && (s.sphere_sites.rows() != nsites || s.sphere_vertices.rows() != s.vertices)) ||
       s.samples.rows() != s.spectrum.rows() || s.samples.cols() != s.spectrum.cols())
     return false;
   const long long samples = static_cast<long long>(s.rings) * s.angles;

@@ -8,6 +8,7 @@
 #include <complex>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "conformal/conformal_map.hpp"
 #include "mesh/mesh.hpp"
@@ -57,6 +58,11 @@ struct ShapeOptions {
   /// by at most 1.4e-9 relative against transports solved to 1e-9 (8 pairs of real and
   /// synthetic meshes), for 1-4 fewer Newton iterations per pair.
   double cost_tolerance = 1e-6;
+  /// On the sphere: vertex images closer than this (chordal, on the unit sphere) become one
+  /// site with their masses added. A conformal sphere map can put neighbouring vertices of
+  /// a long protrusion 1e-13 apart, where no transport resolves their cells in doubles;
+  /// what is transported is the measure, which this moves by at most the radius in W2.
+  double merge_radius = 1e-5;
   Quadrature quadrature;
   /// A string of every option that changes the result (part of the cache key).
   std::string fingerprint() const;
@@ -87,6 +93,16 @@ struct Shape {
   // chordal cost; omt/surface_cells.hpp), built by prepare_shape and load_shape.
   omt::Points3 sphere_sites;
   std::shared_ptr<const omt::SurfaceDensity> surface;
+  /// Sphere shapes: the corners of the source's flat triangles (every vertex's image, one
+  /// row per vertex). The sites are those images with the ones closer than
+  /// ShapeOptions::merge_radius merged (merge_sphere_sites): then fewer rows, and `mass`,
+  /// `h` and `sites` have one entry per site, not per vertex.
+  omt::Points3 sphere_vertices;
+  /// The vertices merged into another's site (0: none), and the farthest any vertex's mass
+  /// was moved by it (chordal): the vertex measure moved by at most that in W2, and so did
+  /// every transport's W2 with this shape as the sites (the triangle inequality).
+  int merged_vertices = 0;
+  double merge_shift = 0;
   // The OMT map of Def. 2.24 from the uniform disk onto (sites, mass) (Alg. 2): heights h
   // and, at each quadrature point, the site of its cell, as complex numbers (ring by ring).
   Eigen::VectorXd h;
@@ -106,6 +122,12 @@ struct Shape {
   int omt_iterations = 0;
   double omt_error = 0;
 };
+
+/// The greedy merge of ShapeOptions::merge_radius: vertices in index order, each joins the
+/// first earlier site within `radius` of it (a grid of cells of that size finds them) or
+/// becomes a site itself. Sites are thus at least `radius` apart and every vertex within
+/// `radius` of its site. site_of gets each vertex's site; returns the sites' positions.
+omt::Points3 merge_sphere_sites(const omt::Points3& X, double radius, std::vector<int>& site_of);
 
 /// Prepares a topological disk (or, with options.sphere, a closed genus-0 surface): throws
 /// Error(kInvalidArgument) for another topology or bad markers, Error(kNotConverged) naming

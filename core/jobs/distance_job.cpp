@@ -88,7 +88,7 @@ nlohmann::json pair_json(const distance::PairResult& r, distance::Method method)
 }
 
 nlohmann::json shape_json(const distance::Shape& x) {
-  return {{"name", x.name},
+  nlohmann::json j = {{"name", x.name},
           {"vertices", x.vertices},
           {"faces", x.faces},
           {"key", x.key},
@@ -96,6 +96,11 @@ nlohmann::json shape_json(const distance::Shape& x) {
           {"conformal_newton_iterations", x.conformal_iterations},
           {"quantization_w2", std::sqrt(x.quantization)},
           {"omt_newton_iterations", x.omt_iterations}};
+  if (x.sphere) {
+    j["merged_vertices"] = x.merged_vertices;
+    j["merge_shift"] = x.merge_shift;
+  }
+  return j;
 }
 
 std::string not_converged_message(const distance::PairResult& r) {
@@ -137,6 +142,12 @@ DistanceOutcome run_distance(const distance::ShapeInput& a, const distance::Shap
   out.report["domain"] = domain_name(request.domain);
   out.report["seconds"] = {{"shapes", t_shapes}, {"pair", t_pair}};
   for (const distance::Shape& x : s) out.report["shapes"].push_back(shape_json(x));
+  if (s[0].sphere)
+    // What the merge of close vertex images (ShapeOptions::merge_radius) guarantees: each
+    // transport's W2 is within the farther shift of the one onto the unmerged measure.
+    out.report["measure_merge"] = {{"radius", a.options.merge_radius},
+                                   {"merged_vertices", {s[0].merged_vertices, s[1].merged_vertices}},
+                                   {"w2_bound", std::max(s[0].merge_shift, s[1].merge_shift)}};
   out.a = std::move(s[0]);
   out.b = std::move(s[1]);
   return out;

@@ -75,7 +75,8 @@ distance::ShapeInput shape_input(const mesh::CleanMesh& cm, const std::string& n
 /// JSON of one pair: method, distance, rotation_rad, normalization, converged and, for the
 /// Wasserstein distance, forward/backward, raw_*, newton_iterations, max_relative_area_error.
 nlohmann::json pair_json(const distance::PairResult& r, distance::Method method);
-/// JSON of a prepared shape: name, vertices, faces, key, normalization, iterations.
+/// JSON of a prepared shape: name, vertices, faces, key, normalization, iterations (and on the
+/// sphere merged_vertices and merge_shift).
 nlohmann::json shape_json(const distance::Shape& s);
 
 struct DistanceOutcome {

@@ -1,5 +1,6 @@
 """Shared helpers of the command-line contract tests: run the tool, count checks, and end
 with the 'N passed, N failed' line CI reads."""
+import math
 import subprocess
 import sys
 
@@ -66,3 +67,54 @@ def write_off(path, verts, faces):
             f.write("%.17g %.17g %.17g\n" % tuple(v))
         for t in faces:
             f.write("3 %d %d %d\n" % tuple(t))
+
+
+# ---- copies of a mesh: the same surface meshed anew, moved, or deformed ---------------------
+
+
+def subdivide(verts, faces, rng=None):
+    """Each triangle into four, the new vertex of an edge at its midpoint, or (rng) anywhere
+    between 35 % and 65 % along it: the same piecewise-linear surface, meshed anew."""
+    verts = [tuple(v) for v in verts]
+    at = {}
+
+    def split(a, b):
+        key = (min(a, b), max(a, b))
+        if key not in at:
+            t = 0.5 if rng is None else rng.uniform(0.35, 0.65)
+            p, q = verts[key[0]], verts[key[1]]
+            verts.append(tuple(p[k] + t * (q[k] - p[k]) for k in range(3)))
+            at[key] = len(verts) - 1
+        return at[key]
+
+    out = []
+    for a, b, c in faces:
+        ab, bc, ca = split(a, b), split(b, c), split(c, a)
+        out += [(a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca)]
+    return verts, out
+
+
+def rigid(verts, scale=2.5):
+    """Turned about an oblique axis, scaled and moved."""
+    a = 0.7
+    c, s = math.cos(a), math.sin(a)
+    out = []
+    for x, y, z in verts:
+        x, y = c * x - s * y, s * x + c * y
+        y, z = c * y - s * z, s * y + c * z
+        out.append((scale * x + 3.0, scale * y - 1.0, scale * z + 0.5))
+    return out
+
+
+def deform(verts):
+    """A smooth non-rigid deformation: stretched 8 % along x and bent by a few percent of
+    the size."""
+    import numpy as np  # here: the other users of this module need no numpy
+    V = np.array(verts)
+    size = np.linalg.norm(V.max(0) - V.min(0))
+    k = 2 * math.pi / size
+    out = V.copy()
+    out[:, 0] *= 1.08
+    out[:, 2] += 0.03 * size * np.sin(k * V[:, 0]) * np.cos(k * V[:, 1])
+    out[:, 1] += 0.02 * size * np.sin(k * V[:, 2] + 1.0)
+    return [tuple(v) for v in out]

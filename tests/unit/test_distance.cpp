@@ -269,6 +269,64 @@ TEST(Distance, CacheFilesReadBackExactlyAndRejectDamage) {
   std::filesystem::remove_all(dir);
 }
 
+TEST(Distance, MergedSphereSitesAreRadiusApartAndEveryVertexWithinRadiusOfItsSite) {
+  // Points on the unit sphere, with clusters planted far below the radius (as a conformal
+  // sphere map crowds a protrusion) and pairs straddling grid cells.
+  std::mt19937 rng(23);
+  std::normal_distribution<double> g;
+  const double radius = 1e-5;
+  std::vector<Eigen::Vector3d> p;
+  for (int k = 0; k < 2000; ++k) p.push_back(Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized());
+  for (int c = 0; c < 50; ++c) {
+    const Eigen::Vector3d centre = p[c];
+    for (int k = 0; k < 20; ++k)
+      p.push_back((centre + 3e-6 * Eigen::Vector3d(g(rng), g(rng), g(rng)) / std::sqrt(3.0)).normalized());
+  }
+  omt::Points3 X(static_cast<Eigen::Index>(p.size()), 3);
+  for (size_t k = 0; k < p.size(); ++k) X.row(static_cast<Eigen::Index>(k)) = p[k].transpose();
+  std::vector<int> site_of;
+  const omt::Points3 S = distance::merge_sphere_sites(X, radius, site_of);
+  ASSERT_EQ(site_of.size(), p.size());
+  EXPECT_LT(S.rows(), X.rows() - 500);  // most planted points joined their centre's site
+  EXPECT_GE(S.rows(), 2000);
+  for (Eigen::Index v = 0; v < X.rows(); ++v) EXPECT_LT((X.row(v) - S.row(site_of[v])).norm(), radius);
+  double closest = 1;
+  for (Eigen::Index i = 0; i < S.rows(); ++i)
+    for (Eigen::Index j = i + 1; j < S.rows(); ++j) closest = std::min(closest, (S.row(i) - S.row(j)).norm());
+  EXPECT_GE(closest, radius);
+  // Radius 0: every vertex its own site.
+  EXPECT_EQ(distance::merge_sphere_sites(X, 0, site_of).rows(), X.rows());
+  EXPECT_ERROR(distance::merge_sphere_sites(X, -1, site_of), ErrorCode::kInvalidArgument, "merge radius");
+}
+
+TEST(Distance, SphereShapesWithMergedSitesTransportAndReadBackExactly) {
+  // An icosphere merged at a radius above some of its edges: fewer sites than vertices, the
+  // masses added; the shape transports onto itself at distance 0, its cache file reads back.
+  ShapeOptions o = small_quadrature();
+  o.sphere = true;
+  o.merge_radius = 0.2;  // large enough to merge neighbours of a coarse sphere
+  const mesh::TriMesh m = mesh::make_icosphere(3);
+  const Shape a = distance::prepare_shape(m, "merged", o);
+  EXPECT_GT(a.merged_vertices, 0);
+  EXPECT_EQ(a.sphere_sites.rows() + a.merged_vertices, a.vertices);
+  EXPECT_EQ(a.sphere_vertices.rows(), a.vertices);
+  EXPECT_LE(a.merge_shift, 0.2);
+  EXPECT_NEAR(a.mass.sum(), 4 * kPi, 1e-9);
+  const distance::PairResult self = distance::wasserstein(a, a);
+  EXPECT_TRUE(self.converged);
+  EXPECT_EQ(self.distance, 0.0);
+  const std::string dir = ::testing::TempDir() + "brenier-sphere-cache-test";
+  std::filesystem::create_directories(dir);
+  const std::string path = dir + "/" + a.key + ".shape";
+  distance::save_shape(a, path);
+  Shape b;
+  ASSERT_TRUE(distance::load_shape(path, b));
+  EXPECT_TRUE(b.sphere_sites == a.sphere_sites && b.sphere_vertices == a.sphere_vertices && b.mass == a.mass &&
+              b.merged_vertices == a.merged_vertices && b.merge_shift == a.merge_shift);
+  EXPECT_EQ(distance::wasserstein(a, b).distance, 0.0);
+  std::filesystem::remove_all(dir);
+}
+
 TEST(Matrix, TilesCoverEveryPairOnceInOrder) {
   for (int n = 2; n <= 13; ++n)
     for (int k = 1; k <= 7; ++k) {
