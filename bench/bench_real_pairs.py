@@ -62,7 +62,8 @@ def run_pair(o, a, b, sphere, rows):
     n = [s["vertices"] for s in j["shapes"]]
     row = {"pair": name, "sphere": sphere, "vertices": n, "distance": j["distance"], "converged": j["converged"],
            "pair_seconds": j["seconds"]["pair"], "newton_iterations": j["newton_iterations"], "peak_mb": mb}
-    line = (f"{name} ({n[0]} x {n[1]}): d = {j['distance']:.5f}, pair {j['seconds']['pair']:.3f} s, "
+    d = "NOT CONVERGED" if j["distance"] is None else f"{j['distance']:.5f}"
+    line = (f"{name} ({n[0]} x {n[1]}): d = {d}, pair {j['seconds']['pair']:.3f} s, "
             f"{j['newton_iterations']} Newton iterations")
     if max(n) <= o.pot_max:
         if sphere:
