@@ -213,7 +213,10 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
 }  // namespace
 
 omt::Points3 merge_sphere_sites(const omt::Points3& X, double radius, std::vector<int>& site_of) {
-  if (!(radius >= 0) || !std::isfinite(radius)) invalid("the merge radius must be 0 or positive");
+  // Below 1e-15 the grid's cell indices (coordinates / radius) would leave a long long; no
+  // transport resolves sites that close anyway.
+  if (!(radius == 0 || (radius >= 1e-15 && std::isfinite(radius))))
+    invalid("the merge radius must be 0 or between 1e-15 and infinity");
   const Eigen::Index n = X.rows();
   site_of.assign(n, -1);
   std::vector<Eigen::Index> sites;

@@ -127,6 +127,7 @@ struct Shape {
 /// first earlier site within `radius` of it (a grid of cells of that size finds them) or
 /// becomes a site itself. Sites are thus at least `radius` apart and every vertex within
 /// `radius` of its site. site_of gets each vertex's site; returns the sites' positions.
+/// Radius 0 keeps every vertex; a radius below 1e-15 (or not finite) is refused.
 omt::Points3 merge_sphere_sites(const omt::Points3& X, double radius, std::vector<int>& site_of);
 
 /// Prepares a topological disk (or, with options.sphere, a closed genus-0 surface): throws

@@ -297,6 +297,7 @@ TEST(Distance, MergedSphereSitesAreRadiusApartAndEveryVertexWithinRadiusOfItsSit
   // Radius 0: every vertex its own site.
   EXPECT_EQ(distance::merge_sphere_sites(X, 0, site_of).rows(), X.rows());
   EXPECT_ERROR(distance::merge_sphere_sites(X, -1, site_of), ErrorCode::kInvalidArgument, "merge radius");
+  EXPECT_ERROR(distance::merge_sphere_sites(X, 1e-300, site_of), ErrorCode::kInvalidArgument, "merge radius");
 }
 
 TEST(Distance, SphereShapesWithMergedSitesTransportAndReadBackExactly) {
