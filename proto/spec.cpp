@@ -13,6 +13,7 @@ void set_wasserstein(const jobs::ShapeRequest& r, pb::WassersteinOptions* w) {
   w->set_cost_tolerance(r.cost_tolerance > 0 ? r.cost_tolerance : -1.0);
   w->set_refine_rotation(r.refine_rotation);
   w->set_raw(r.raw);
+  w->set_exact_rotation(r.exact_rotation);
   w->set_rings(r.rings);
   w->set_angles(r.angles);
 }
@@ -31,6 +32,7 @@ jobs::ShapeRequest shape_request(const Spec& s) {
   if (w.cost_tolerance() != 0) r.cost_tolerance = std::max(0.0, w.cost_tolerance());
   r.refine_rotation = w.refine_rotation();
   r.raw = w.raw();
+  r.exact_rotation = w.exact_rotation();
   if (w.rings() != 0) r.rings = w.rings();
   if (w.angles() != 0) r.angles = w.angles();
   return r;

@@ -42,26 +42,30 @@ struct Turn {
 // c(s)) with c(s) = sum_{r,k} conj(a_{r,k}) b_{r,k-s}. By the DFTs of the rings (a_hat,
 // b_hat), c(s) = (1/A) sum_m conj(a_hat_{r,m}) b_hat_{r,m} e^{-2 pi i m s / A}: one forward
 // transform of the ring-summed product gives every c(s).
-Turn best_turn(const Shape& a, const Shape& b) {
-  if (a.markers) return {};
+//
+// Every turn's score, the candidates being the local maxima (the OMT-map distance's local
+// minima over the turns), best first; ties keep the first turn, so the same on every run.
+std::vector<Turn> candidate_turns(const Shape& a, const Shape& b) {
+  if (a.markers) return {Turn{}};
   const int R = static_cast<int>(a.samples.rows()), A = static_cast<int>(a.samples.cols());
   std::vector<cd> x(A, cd(0, 0)), c(A);
   for (int m = 0; m < A; ++m)
     for (int r = 0; r < R; ++r) x[m] += std::conj(a.spectrum(r, m)) * b.spectrum(r, m);
   Eigen::FFT<double> fft;
   fft.fwd(c, x);
-  Turn best;
-  double top = -std::numeric_limits<double>::infinity();
+  std::vector<double> score(A);
+  for (int s = 0; s < A; ++s) score[s] = std::real(std::polar(1.0, 2 * M_PI * s / A) * c[s]);
+  std::vector<Turn> out;
   for (int s = 0; s < A; ++s) {
-    const double theta = 2 * M_PI * s / A;
-    const double score = std::real(std::polar(1.0, theta) * c[s]);
-    if (score > top) {  // first maximum: the same turn on every run
-      top = score;
-      best = {s, theta};
-    }
+    const double left = score[(s + A - 1) % A], right = score[(s + 1) % A];
+    if (score[s] > left && score[s] >= right) out.push_back({s, 2 * M_PI * s / A});
   }
-  return best;
+  if (out.empty()) out.push_back({0, 0.0});  // a constant score: every turn alike
+  std::stable_sort(out.begin(), out.end(), [&](const Turn& p, const Turn& q) { return score[p.shift] > score[q.shift]; });
+  return out;
 }
+
+Turn best_turn(const Shape& a, const Shape& b) { return candidate_turns(a, b).front(); }
 
 // sum_q w |a_q - e^{i theta} b_{r,k-s}|^2, summed directly (the FFT only chose s).
 double squared_distance(const Shape& a, const Shape& b, const Turn& t) {
@@ -105,19 +109,23 @@ bool guarded(TransportCost& out, Solve solve) {
 // the heights' error where the primal sum's is linear (measured on a 5K pair: 6e-11 relative
 // with the cells 1e-2 off their masses, where eq. 3.31 was 2e-6 off). Where the cost test
 // stopped the solve, the Newton step's predicted rise is added (third order).
+// An abandoned solve (OmtOptions::abandon) leaves h as it was, with w2_squared its dual bound.
 template <class Solve>
-TransportCost transport_to(const Shape& dst, const omt::Progress& progress, omt::OmtOptions o, Eigen::VectorXd& h,
-                           Solve solve) {
+TransportCost transport_to(const Shape& dst, const omt::Progress& progress, const Abandon& abandon,
+                           omt::OmtOptions o, Eigen::VectorXd& h, Solve solve) {
   o.tolerance = dst.transport_tolerance;
   o.dual_gap_tolerance = dst.cost_tolerance;
   o.progress = progress;
+  o.abandon = abandon;
   TransportCost out;
   decltype(solve(o)) r;
   if (!guarded(out, [&] { r = solve(o); })) return out;
   out.iterations = r.iterations;
   out.max_relative_error = r.max_relative_error;
   out.converged = r.converged;
+  out.abandoned = r.abandoned;
   out.w2_squared = r.dual_value + r.dual_rise;
+  if (r.abandoned) return out;
   if (r.dual_rise > 0) out.relative_cost_gap = r.dual_rise / std::abs(r.dual_value);
   h = r.h;
   return out;
@@ -126,19 +134,19 @@ TransportCost transport_to(const Shape& dst, const omt::Progress& progress, omt:
 }  // namespace
 
 TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
-                                    const omt::Progress& progress, Eigen::VectorXd& h) {
+                                    const omt::Progress& progress, Eigen::VectorXd& h, const Abandon& abandon) {
   if (!src.surface || dst.sphere_sites.rows() != dst.mass.size())
     invalid("'" + src.name + "' or '" + dst.name + "' has no sphere image for the exact distance");
   omt::Points3 sites = dst.sphere_sites;
   for (Eigen::Index i = 0; i < sites.rows(); ++i) sites.row(i) = sites.row(i).cwiseProduct(flip.transpose());
   omt::OmtOptions o;
   if (h.size()) o.initial_h = h;
-  return transport_to(dst, progress, o, h,
+  return transport_to(dst, progress, abandon, o, h,
                       [&](const omt::OmtOptions& oo) { return omt::solve_surface_omt(*src.surface, sites, dst.mass, oo); });
 }
 
 TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, const omt::Progress& progress,
-                             Eigen::VectorXd& h) {
+                             Eigen::VectorXd& h, const Abandon& abandon) {
   const omt::Domain domain = src.density_domain ? *src.density_domain
                                                 : omt::Domain::piecewise_constant(src.sites, src.tri, src.density);
   const double c = std::cos(angle), s = std::sin(angle);
@@ -150,7 +158,7 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, c
   // density differs (measured, source three_peaks to mushroom's sites: 24 Newton iterations
   // where Alg. 2's Voronoi start took 52).
   o.initial_h = h.size() ? h : dst.h;
-  return transport_to(dst, progress, o, h,
+  return transport_to(dst, progress, abandon, o, h,
                       [&](const omt::OmtOptions& oo) { return omt::solve_omt(domain, sites, dst.mass, oo); });
 }
 
@@ -180,26 +188,32 @@ namespace {
 // point x_{pi_g(q)}, so each candidate is a permutation of B's samples.
 const Eigen::Vector3d kFlips[4] = {{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1, 1}};
 
+const char* const kFrameNames[4] = {"identity", "half-turn about the first axis", "half-turn about the second axis",
+                                    "half-turn about the third axis"};
+
+// The OMT-map distance with B under the half-turn g of its frame.
+double omt_linear_frame(const Shape& a, const Shape& b, int g) {
+  Quadrature quad;
+  quad.rings = a.rings;
+  quad.angles = a.angles;
+  const std::vector<int> to = sphere_half_turn(g, quad);
+  double sum = 0;
+  for (int q = 0; q < a.rings * a.angles; ++q) {
+    const Eigen::Vector3d ta = a.sphere_samples.row(q).transpose(), tb = b.sphere_samples.row(to[q]).transpose();
+    sum += (ta - kFlips[g].cwiseProduct(tb)).squaredNorm();
+  }
+  return std::sqrt(sum * 4 * M_PI / (static_cast<double>(a.rings) * a.angles));
+}
+
 // (`frame`, if given, gets the half-turn chosen: an index of kFlips.)
-PairResult omt_linear_sphere(const Shape& a, const Shape& b, int rings, int angles, int* frame = nullptr) {
+PairResult omt_linear_sphere(const Shape& a, const Shape& b, int* frame = nullptr) {
   PairResult out;
   out.distance = std::numeric_limits<double>::infinity();
-  const char* names[4] = {"identity", "half-turn about the first axis", "half-turn about the second axis",
-                          "half-turn about the third axis"};
-  Quadrature quad;
-  quad.rings = rings;
-  quad.angles = angles;
   for (int g = 0; g < 4; ++g) {
-    const std::vector<int> to = sphere_half_turn(g, quad);
-    double sum = 0;
-    for (int q = 0; q < rings * angles; ++q) {
-      const Eigen::Vector3d ta = a.sphere_samples.row(q).transpose(), tb = b.sphere_samples.row(to[q]).transpose();
-      sum += (ta - kFlips[g].cwiseProduct(tb)).squaredNorm();
-    }
-    const double d = std::sqrt(sum * 4 * M_PI / (static_cast<double>(rings) * angles));
+    const double d = omt_linear_frame(a, b, g);
     if (d < out.distance) {
       out.distance = d;
-      out.normalization = std::string("Moebius centring, principal frames, ") + names[g] + " of the second shape";
+      out.normalization = std::string("Moebius centring, principal frames, ") + kFrameNames[g] + " of the second shape";
       if (frame) *frame = g;
     }
   }
@@ -211,7 +225,7 @@ PairResult omt_linear_sphere(const Shape& a, const Shape& b, int rings, int angl
 
 PairResult omt_linear(const Shape& a, const Shape& b) {
   require_comparable(a, b);
-  if (a.sphere) return omt_linear_sphere(a, b, a.rings, a.angles);
+  if (a.sphere) return omt_linear_sphere(a, b);
   const Turn t = best_turn(a, b);
   PairResult out;
   out.distance = std::sqrt(std::max(0.0, squared_distance(a, b, t)));
@@ -220,92 +234,255 @@ PairResult omt_linear(const Shape& a, const Shape& b) {
   return out;
 }
 
-PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions& opt) {
-  require_comparable(a, b);
-  if (a.transport_tolerance != b.transport_tolerance || a.cost_tolerance != b.cost_tolerance)
-    invalid("'" + a.name + "' and '" + b.name + "' were prepared with different transport tolerances");
-  PairResult out;
-  const int A = static_cast<int>(a.samples.cols());
-  out.normalization = turn_words(a, A);
-  Eigen::VectorXd h_ab, h_ba;
-  struct Eval {
-    double angle, mean, forward, backward, raw_forward, raw_backward;
-  };
-  // One call's progress at a time, when the two directions run side by side.
-  std::mutex progress_mutex;
-  omt::Progress progress;
-  if (opt.progress)
-    progress = [&](int iteration, double residual) {
-      std::lock_guard<std::mutex> lock(progress_mutex);
-      return opt.progress(iteration, residual);
-    };
-  auto add = [&](const TransportCost& c, const Shape& dst, double& raw) {
-    out.newton_iterations += c.iterations;
-    out.max_relative_error = std::max(out.max_relative_error, c.max_relative_error);
-    out.max_relative_cost_gap = std::max(out.max_relative_cost_gap, c.relative_cost_gap);
-    out.converged = out.converged && c.converged;
-    raw = std::sqrt(std::max(0.0, c.w2_squared));
-    return std::sqrt(std::max(0.0, c.w2_squared - (opt.debias ? dst.quantization : 0.0)));
-  };
-  if (a.sphere) {
-    // On the sphere, the squared chordal cost between A's density (on the flat triangles of
-    // its sphere image) and B's vertices, B in the half-turn of its principal frame that the
-    // OMT-map distance finds best; backwards B's density to A's vertices under the same
-    // half-turn (it is its own inverse: W2(g mu_B, nu_A) = W2(mu_B, g nu_A)).
-    int g = 0;
-    const PairResult frame = omt_linear_sphere(a, b, a.rings, a.angles, &g);
-    TransportCost c[2];
-    Eigen::VectorXd h_a, h_b;
-    parallel_for(2, opt.parallel_directions ? 2 : 1, [&](int k) {
-      c[k] = k == 0 ? transport_cost_sphere(a, b, kFlips[g], progress, h_b)
-                    : transport_cost_sphere(b, a, kFlips[g], progress, h_a);
-    });
-    out.forward = add(c[0], b, out.raw_forward);
-    out.backward = add(c[1], a, out.raw_backward);
-    out.normalization = frame.normalization + ", chosen by the OMT-map distance; squared chordal cost, the density on "
-                                              "the flat triangles of the sphere image";
-    if (opt.debias) out.normalization += "; quantization bias removed";
-    out.distance = out.converged ? 0.5 * (out.forward + out.backward) : std::numeric_limits<double>::quiet_NaN();
-    return out;
+namespace {
+
+// The lower bound of a candidate's distance while its two directions run: each direction's
+// Kantorovich dual bounds its W2^2 from below at every iterate (weak duality), so
+//   d >= 1/2 (sqrt(D_ab - q_b) + sqrt(D_ba - q_a))   (q: the debiasing terms).
+// Once that passes the ceiling, both directions are told to stop.
+class PairBound {
+ public:
+  PairBound(double q_forward, double q_backward, double ceiling)
+      : q_{q_forward, q_backward}, ceiling_(ceiling) {}
+  bool update(int k, double w2_squared) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    lb_[k] = std::max(lb_[k], w2_squared);
+    return bound_locked() > ceiling_;
   }
-  // d(A, R_theta B) both ways: the second direction turns A back instead (same thing, by the
-  // rotation invariance of both measures' disk). The two transports are independent, and
-  // each is bit-identical on any number of threads.
-  auto evaluate = [&](double angle) {
-    TransportCost c[2];
-    parallel_for(2, opt.parallel_directions ? 2 : 1, [&](int k) {
-      c[k] = k == 0 ? transport_cost(a, b, angle, progress, h_ab) : transport_cost(b, a, -angle, progress, h_ba);
+  double bound() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return bound_locked();
+  }
+
+ private:
+  double bound_locked() const {
+    return 0.5 * (std::sqrt(std::max(0.0, lb_[0] - q_[0])) + std::sqrt(std::max(0.0, lb_[1] - q_[1])));
+  }
+  std::mutex mutex_;
+  double q_[2], lb_[2] = {0, 0}, ceiling_;
+};
+
+// One candidate (a turn of b's disk image, or a half-turn of its frame), both directions.
+struct Eval {
+  double angle = 0;
+  int frame = 0;
+  double mean = 0, forward = 0, backward = 0, raw_forward = 0, raw_backward = 0;
+  double lower_bound = 0;
+  bool converged = true, abandoned = false;
+  int iterations = 0;
+  double max_relative_error = 0, max_relative_cost_gap = 0;
+  Eigen::VectorXd h[2];  // the heights reached (b's sites, a's sites)
+};
+
+class PairSolver {
+ public:
+  PairSolver(const Shape& a, const Shape& b, const WassersteinOptions& opt) : a_(a), b_(b), opt_(opt) {
+    if (opt.progress)  // one call's progress at a time, when the two directions run side by side
+      progress_ = [this](int iteration, double residual) {
+        std::lock_guard<std::mutex> lock(progress_mutex_);
+        return opt_.progress(iteration, residual);
+      };
+  }
+
+  /// The candidate solved, from `start` (empty: each shape's uniform heights), each
+  /// direction dropped once the pair's bound passes `ceiling`.
+  Eval disk(double angle, const Eigen::VectorXd (&start)[2], double ceiling) {
+    Eval e;
+    e.angle = angle;
+    solve(e, start, ceiling, [&](int k, Eigen::VectorXd& h, const Abandon& ab) {
+      return k == 0 ? transport_cost(a_, b_, angle, progress_, h, ab) : transport_cost(b_, a_, -angle, progress_, h, ab);
     });
-    Eval e{angle, 0, 0, 0, 0, 0};
-    e.forward = add(c[0], b, e.raw_forward);
-    e.backward = add(c[1], a, e.raw_backward);
-    e.mean = 0.5 * (e.forward + e.backward);
     return e;
-  };
-  const Turn t = best_turn(a, b);
-  Eval best = evaluate(t.angle);
-  if (!a.markers && opt.refine_rotation && out.converged) {
-    // A parabola through the distances at the turn and half a quadrature step either side;
-    // its vertex, if it is a minimum within two half-steps, is tried too.
-    const double step = M_PI / A;
-    const Eval lo = evaluate(t.angle - step), hi = evaluate(t.angle + step);
-    const double curvature = lo.mean + hi.mean - 2 * best.mean;
-    std::vector<Eval> tried = {lo, best, hi};
-    if (curvature > 0) {
-      const double offset = std::clamp(0.5 * step * (lo.mean - hi.mean) / curvature, -2 * step, 2 * step);
-      if (std::abs(offset) > 1e-3 * step) tried.push_back(evaluate(t.angle + offset));
-    }
-    for (const Eval& e : tried)
-      if (e.mean < best.mean) best = e;
-    out.normalization += ", refined by exact evaluations";
   }
+  // On the sphere, b's density goes backwards to a's vertices under the same half-turn (it
+  // is its own inverse: W2(g mu_B, nu_A) = W2(mu_B, g nu_A)).
+  Eval sphere(int g, double ceiling);
+
+ private:
+  template <class Direction>
+  void solve(Eval& e, const Eigen::VectorXd (&start)[2], double ceiling, Direction direction) {
+    const bool watch = std::isfinite(ceiling);
+    PairBound bound(opt_.debias ? b_.quantization : 0.0, opt_.debias ? a_.quantization : 0.0, ceiling);
+    TransportCost c[2];
+    parallel_for(2, opt_.parallel_directions ? 2 : 1, [&](int k) {
+      e.h[k] = start[k];
+      Abandon ab;
+      if (watch) ab = [&bound, k](double w) { return bound.update(k, w); };
+      c[k] = direction(k, e.h[k], ab);
+      if (watch && c[k].converged) bound.update(k, c[k].w2_squared);
+    });
+    const Shape* dst[2] = {&b_, &a_};
+    double* value[2] = {&e.forward, &e.backward};
+    double* raw[2] = {&e.raw_forward, &e.raw_backward};
+    for (int k = 0; k < 2; ++k) {
+      e.iterations += c[k].iterations;
+      e.abandoned = e.abandoned || c[k].abandoned;
+      e.converged = e.converged && c[k].converged;
+      e.max_relative_error = std::max(e.max_relative_error, c[k].max_relative_error);
+      e.max_relative_cost_gap = std::max(e.max_relative_cost_gap, c[k].relative_cost_gap);
+      *raw[k] = std::sqrt(std::max(0.0, c[k].w2_squared));
+      *value[k] = std::sqrt(std::max(0.0, c[k].w2_squared - (opt_.debias ? dst[k]->quantization : 0.0)));
+    }
+    e.mean = 0.5 * (e.forward + e.backward);
+    e.lower_bound = e.converged ? e.mean : bound.bound();
+    if (e.abandoned) e.converged = false;
+  }
+
+  const Shape& a_;
+  const Shape& b_;
+  const WassersteinOptions& opt_;
+  std::mutex progress_mutex_;
+  omt::Progress progress_;
+};
+
+Eval PairSolver::sphere(int g, double ceiling) {
+  Eval e;
+  e.frame = g;
+  const Eigen::VectorXd none[2];
+  solve(e, none, ceiling, [&](int k, Eigen::VectorXd& h, const Abandon& ab) {
+    return k == 0 ? transport_cost_sphere(a_, b_, kFlips[g], progress_, h, ab)
+                  : transport_cost_sphere(b_, a_, kFlips[g], progress_, h, ab);
+  });
+  return e;
+}
+
+// The candidates after the first: each solved while it may still beat `best` by more than
+// the distance's tolerance (half the transports' relative cost tolerance, as d = sqrt(W2^2)),
+// and taken only if it does (within the tolerance the OMT-map's choice stands: shapes with a
+// symmetry have several turns equal up to round-off). `certify`: the search was asked for. `solve(candidate, ceiling)` gives its Eval; `omt_map` its OMT-map distance.
+template <class Solve>
+void search_candidates(int count, const Shape& a, bool certify, Eval& best, PairResult& out, Solve solve,
+                       const std::vector<double>& omt_map) {
+  auto record = [&](const Eval& e, double d) {
+    PairResult::Candidate c;
+    c.rotation = e.angle;
+    c.frame = e.frame;
+    c.omt_map = d;
+    if (e.converged) c.distance = e.mean;
+    c.lower_bound = e.lower_bound;
+    c.abandoned = e.abandoned;
+    c.newton_iterations = e.iterations;
+    out.candidates.push_back(c);
+    out.newton_iterations += e.iterations;
+  };
+  record(best, omt_map[0]);
+  out.rotation_certified = certify && best.converged;
+  for (int k = 1; k < count && best.converged; ++k) {
+    const double ceiling = best.mean * (1 - 0.5 * a.cost_tolerance);
+    Eval e = solve(k, ceiling);
+    record(e, omt_map[k]);
+    // Settled: converged (then compared), or abandoned with its bound above the ceiling.
+    out.rotation_certified = out.rotation_certified && (e.converged || e.abandoned);
+    if (e.converged && e.mean < ceiling) best = std::move(e);
+  }
+}
+
+void take(PairResult& out, const Eval& best, bool debias) {
   out.rotation = best.angle;
   out.forward = best.forward;
   out.backward = best.backward;
   out.raw_forward = best.raw_forward;
   out.raw_backward = best.raw_backward;
-  if (opt.debias) out.normalization += "; quantization bias removed";
+  out.converged = best.converged;
+  out.max_relative_error = best.max_relative_error;
+  out.max_relative_cost_gap = best.max_relative_cost_gap;
+  if (debias) out.normalization += "; quantization bias removed";
   out.distance = out.converged ? best.mean : std::numeric_limits<double>::quiet_NaN();
+}
+
+PairResult wasserstein_sphere(const Shape& a, const Shape& b, const WassersteinOptions& opt) {
+  // The squared chordal cost between A's density (on the flat triangles of its sphere
+  // image) and B's vertices, B in a half-turn of its principal frame.
+  PairResult out;
+  out.sphere_frames = true;
+  PairSolver solver(a, b, opt);
+  int first = 0;
+  const PairResult frame = omt_linear_sphere(a, b, &first);
+  std::vector<int> order = {first};
+  for (int g = 0; g < 4 && opt.exact_rotation; ++g)
+    if (g != first) order.push_back(g);
+  std::vector<double> omt_map;
+  for (int g : order) omt_map.push_back(omt_linear_frame(a, b, g));
+  // The others in the order of their OMT-map distance (the likelier to win first).
+  std::vector<int> rank(order.size());
+  for (size_t k = 0; k < rank.size(); ++k) rank[k] = static_cast<int>(k);
+  std::stable_sort(rank.begin() + 1, rank.end(), [&](int p, int q) { return omt_map[p] < omt_map[q]; });
+  std::vector<int> sorted_order;
+  std::vector<double> sorted_map;
+  for (int k : rank) sorted_order.push_back(order[k]), sorted_map.push_back(omt_map[k]);
+  order.swap(sorted_order);
+  omt_map.swap(sorted_map);
+  Eval best = solver.sphere(first, std::numeric_limits<double>::infinity());
+  out.newton_iterations = 0;
+  search_candidates(static_cast<int>(order.size()), a, opt.exact_rotation, best, out,
+                    [&](int k, double ceiling) { return solver.sphere(order[k], ceiling); }, omt_map);
+  out.normalization = std::string("Moebius centring, principal frames, ") + kFrameNames[best.frame] +
+                      " of the second shape, " +
+                      (opt.exact_rotation ? "the least exact cost of the frame's four sign choices"
+                                          : "chosen by the OMT-map distance") +
+                      "; squared chordal cost, the density on the flat triangles of the sphere image";
+  take(out, best, opt.debias);
+  return out;
+}
+
+}  // namespace
+
+PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions& opt) {
+  require_comparable(a, b);
+  if (a.transport_tolerance != b.transport_tolerance || a.cost_tolerance != b.cost_tolerance)
+    invalid("'" + a.name + "' and '" + b.name + "' were prepared with different transport tolerances");
+  if (a.sphere) return wasserstein_sphere(a, b, opt);
+  PairResult out;
+  const int A = static_cast<int>(a.samples.cols());
+  out.normalization = turn_words(a, A);
+  PairSolver solver(a, b, opt);
+  // The candidates: the OMT-map distance's local minima within kCandidateWindow of its best
+  // (where it upper-bounds the measures' W2 about as closely as at its best), at most
+  // kMaxCandidates of them.
+  constexpr double kCandidateWindow = 0.10;
+  constexpr size_t kMaxCandidates = 8;
+  std::vector<Turn> turns;
+  std::vector<double> omt_map;
+  for (const Turn& t : candidate_turns(a, b)) {
+    const double d = std::sqrt(std::max(0.0, squared_distance(a, b, t)));
+    if (!turns.empty() && (!opt.exact_rotation || d > (1 + kCandidateWindow) * omt_map[0] ||
+                           turns.size() == kMaxCandidates))
+      break;
+    turns.push_back(t);
+    omt_map.push_back(d);
+  }
+  const Eigen::VectorXd none[2];
+  Eval best = solver.disk(turns[0].angle, none, std::numeric_limits<double>::infinity());
+  search_candidates(static_cast<int>(turns.size()), a, opt.exact_rotation, best, out,
+                    [&](int k, double ceiling) { return solver.disk(turns[k].angle, none, ceiling); }, omt_map);
+  if (turns.size() > 1)
+    out.normalization += " (the least exact cost among the OMT-map distance's " + std::to_string(turns.size()) +
+                         " local minima within 10 % of its best)";
+  if (!a.markers && opt.refine_rotation && best.converged) {
+    // A parabola through the distances at the turn and half a quadrature step either side;
+    // its vertex, if it is a minimum within two half-steps, is tried too. Each starts from
+    // the turn's heights.
+    const double step = M_PI / A, inf = std::numeric_limits<double>::infinity(), at = best.angle;
+    const Eigen::VectorXd start[2] = {best.h[0], best.h[1]};
+    const Eval lo = solver.disk(at - step, start, inf), hi = solver.disk(at + step, start, inf);
+    out.newton_iterations += lo.iterations + hi.iterations;
+    const double curvature = lo.mean + hi.mean - 2 * best.mean;
+    std::vector<Eval> tried = {lo, hi};
+    if (curvature > 0 && lo.converged && hi.converged) {
+      const double offset = std::clamp(0.5 * step * (lo.mean - hi.mean) / curvature, -2 * step, 2 * step);
+      if (std::abs(offset) > 1e-3 * step) {
+        tried.push_back(solver.disk(at + offset, start, inf));
+        out.newton_iterations += tried.back().iterations;
+      }
+    }
+    bool all = true;
+    for (const Eval& e : tried) all = all && e.converged;
+    for (const Eval& e : tried)
+      if (all && e.mean < best.mean) best = e;
+    if (!all) best.converged = false;
+    out.normalization += ", refined by exact evaluations";
+  }
+  take(out, best, opt.debias);
   return out;
 }
 

@@ -1,6 +1,7 @@
 // Shape distances between two prepared surfaces (distance/shape.hpp).
 #pragma once
 
+#include <functional>
 #include <limits>
 #include <string>
 #include <vector>
@@ -29,6 +30,25 @@ struct PairResult {
   /// tolerance; see ShapeOptions::cost_tolerance).
   double max_relative_cost_gap = 0;
   bool converged = true;
+  /// Wasserstein with WassersteinOptions::exact_rotation: every turn (disk) or frame
+  /// half-turn (sphere) compared by the exact cost, the chosen one first.
+  struct Candidate {
+    double rotation = 0;  // disk: radians
+    int frame = 0;        // sphere: 0 identity, 1-3 the half-turn about that axis
+    double omt_map = 0;   // the OMT-map distance there (an upper bound of the measures' W2)
+    /// The exact distance (mean of both directions) where both converged; NaN otherwise.
+    double distance = std::numeric_limits<double>::quiet_NaN();
+    /// A lower bound of that distance from the transports' duals: the distance itself where
+    /// they converged, less where the candidate was abandoned.
+    double lower_bound = 0;
+    bool abandoned = false;  // dropped once lower_bound passed the best distance (less its tolerance)
+    int newton_iterations = 0;
+  };
+  std::vector<Candidate> candidates;
+  bool sphere_frames = false;  // the candidates are the sphere frame's half-turns
+  /// Every candidate but the chosen one converged above it or was abandoned with its lower
+  /// bound above it less the tolerance (false where one stopped short).
+  bool rotation_certified = false;
 };
 
 /// The OMT-map shape distance of Def. 2.24 as a linear embedding: the L2 distance between
@@ -63,6 +83,12 @@ struct WassersteinOptions {
   /// surfaces' measures to O(h^2) instead of O(h), and d(A, A) is exactly 0 (the same
   /// transport is solved on both sides of the difference).
   bool debias = true;
+  /// Choose the turn by the exact cost, not by the OMT-map distance alone. Disk: the OMT-map
+  /// distance's local minima over the quadrature's turns are the candidates; sphere: the
+  /// frame's four half-turns. The OMT-map's best is solved first; each other candidate is
+  /// solved until it beats it or until the transports' duals (lower bounds of its cost) show
+  /// it at most the distance's tolerance below it (PairResult::candidates: a certificate).
+  bool exact_rotation = false;
   /// Solve the two directions on two threads (one OpenMP thread each): for a single pair.
   /// A matrix runs its pairs on its own pool and leaves this off.
   bool parallel_directions = false;
@@ -79,15 +105,18 @@ struct TransportCost {
   double max_relative_error = std::numeric_limits<double>::infinity();
   double relative_cost_gap = 0;  // the dual's rise left over the cost, when the cost test stopped it
   bool converged = false;
+  bool abandoned = false;  // stopped by the caller's bound (omt::OmtOptions::abandon)
   std::string failure;  // why the solve stopped, when it threw
 };
+/// OmtOptions::abandon for one direction of a pair.
+using Abandon = std::function<bool(double lower_bound)>;
 TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, const omt::Progress& progress,
-                             Eigen::VectorXd& h);
+                             Eigen::VectorXd& h, const Abandon& abandon = {});
 /// On the sphere (squared chordal cost): src's density on its flat image triangles to dst's
 /// vertex images, each coordinate of the frame multiplied by flip (+-1: a half-turn of dst's
 /// principal frame), to dst's cell tolerance; the cost is the Kantorovich dual.
 TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
-                                    const omt::Progress& progress, Eigen::VectorXd& h);
+                                    const omt::Progress& progress, Eigen::VectorXd& h, const Abandon& abandon = {});
 
 /// The conformal Wasserstein distance (Alg. 5, eq. 3.31): the source is the first shape's
 /// pushed-forward area density (piecewise constant on its conformal image), the sites the

@@ -27,6 +27,7 @@ distance::WassersteinOptions wasserstein_options(const ShapeRequest& request) {
   distance::WassersteinOptions w;
   w.refine_rotation = request.refine_rotation;
   w.debias = !request.raw;
+  w.exact_rotation = request.exact_rotation;
   return w;
 }
 
@@ -83,6 +84,21 @@ nlohmann::json pair_json(const distance::PairResult& r, distance::Method method)
     j["newton_iterations"] = r.newton_iterations;
     j["max_relative_area_error"] = r.max_relative_error;
     j["max_relative_cost_gap"] = r.max_relative_cost_gap;
+    // The turns (disk) or half-turns (sphere) compared by the exact cost, the chosen one's
+    // certificate: every other one converged above it or was abandoned with a lower bound
+    // above it less the tolerance.
+    nlohmann::json cands = nlohmann::json::array();
+    for (const distance::PairResult::Candidate& c : r.candidates) {
+      nlohmann::json x = {{"omt_map_distance", c.omt_map},
+                          {"lower_bound", c.lower_bound},
+                          {"abandoned", c.abandoned},
+                          {"newton_iterations", c.newton_iterations}};
+      x["distance"] = std::isfinite(c.distance) ? nlohmann::json(c.distance) : nlohmann::json();
+      if (r.sphere_frames) x["frame"] = c.frame; else x["rotation_rad"] = c.rotation;
+      cands.push_back(x);
+    }
+    j["rotation_candidates"] = cands;
+    j["rotation_certified"] = r.rotation_certified;
   }
   return j;
 }

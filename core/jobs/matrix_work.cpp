@@ -28,6 +28,7 @@ nlohmann::json to_json(const ShapeRequest& r) {
           {"cost_tolerance", r.cost_tolerance},
           {"refine_rotation", r.refine_rotation},
           {"raw", r.raw},
+          {"exact_rotation", r.exact_rotation},
           {"rings", r.rings},
           {"angles", r.angles}};
 }
@@ -43,6 +44,7 @@ ShapeRequest shape_from_json(const nlohmann::json& j) {
   r.cost_tolerance = j.at("cost_tolerance").get<double>();
   r.refine_rotation = j.at("refine_rotation").get<bool>();
   r.raw = j.at("raw").get<bool>();
+  r.exact_rotation = j.value("exact_rotation", false);
   r.rings = j.at("rings").get<int>();
   r.angles = j.at("angles").get<int>();
   return r;

@@ -59,6 +59,7 @@ struct ShapeRequest {
   double tolerance = 1e-3;       // the Wasserstein transports' max relative cell-mass error
   double cost_tolerance = 1e-6;  // ... or the relative dual gap of their cost (0: off)
   bool refine_rotation = false;  // disk: refine the best turn by exact evaluations
+  bool exact_rotation = false;   // choose the turn or half-turn by the exact cost, with a certificate
   bool raw = false;              // eq. 3.31 as it stands, no quantization bias removed
   int rings = 64, angles = 256;  // the quadrature of the OMT-map samples (Def. 2.24)
   static constexpr int64_t kMaxSamples = int64_t{1} << 20;  // rings x angles at most

@@ -332,8 +332,14 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
   nu.maxCoeff(&held);
   Directions directions(domain.is_sphere, n, r);
   bool gap_closed = false;
+  // OmtOptions::abandon: the dual at the current cells, a lower bound of the cost.
+  auto abandon = [&] {
+    if (!opt.abandon || domain.is_sphere) return false;
+    r.dual_value = dual(psi.hi, psi.lo, r.cells, g);
+    return r.abandoned = opt.abandon(r.dual_value);
+  };
   for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
-    if (r.max_relative_error <= opt.tolerance) break;
+    if (r.max_relative_error <= opt.tolerance || abandon()) break;
     const Eigen::SparseMatrix<double> H = hessian(r.cells, sites, n, held);
     const Eigen::VectorXd rhs = -drop(g, held);
     bool accepted = false;
@@ -369,10 +375,10 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
       break;  // round-off floor: no step improves any more
     }
   }
-  if (!domain.is_sphere && !gap_closed) r.dual_value = dual(psi.hi, psi.lo, r.cells, r.cells.mass - nu);
+  if (!domain.is_sphere && !gap_closed && !r.abandoned) r.dual_value = dual(psi.hi, psi.lo, r.cells, r.cells.mass - nu);
   r.h = (psi.hi - 0.5 * sites.rowwise().squaredNorm()) + psi.lo;
   r.h.array() -= r.h.mean();
-  r.converged = r.max_relative_error <= opt.tolerance || gap_closed;
+  r.converged = (r.max_relative_error <= opt.tolerance || gap_closed) && !r.abandoned;
   return r;
 }
 

@@ -35,6 +35,12 @@ struct OmtOptions {
   /// quadratic phase, where the second-order prediction holds), without building the
   /// diagram the step would lead to; OmtResult::dual_rise then holds the decrement.
   double dual_gap_tolerance = 0;
+  /// Planar and surface transports: called at the start and after every Newton iteration
+  /// with the Kantorovich dual D(h) at the current heights, a lower bound of the transport's
+  /// cost W2^2 whatever h is (weak duality); returning true stops the solve there, with
+  /// `abandoned` set and dual_value holding that bound. For callers that compare transports
+  /// (the best turn of a shape distance) and can drop one once its bound passes the best.
+  std::function<bool(double lower_bound)> abandon;
 };
 
 struct OmtResult {
@@ -54,6 +60,7 @@ struct OmtResult {
   /// rise of D left to its maximum (to second order; dual_value + dual_rise estimates the
   /// cost to third order). 0 otherwise.
   double dual_rise = 0;
+  bool abandoned = false;  // stopped by OmtOptions::abandon (converged is then false)
 };
 
 /// Throws Error(kInvalidArgument) unless there are sites, one positive finite target mass per

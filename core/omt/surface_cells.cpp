@@ -318,6 +318,7 @@ SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3&
     return cells.second_moment.sum() - w.dot(cells.mass - nu);
   };
   for (r.iterations = 0; r.iterations < opt.max_iterations && r.max_relative_error > opt.tolerance; ++r.iterations) {
+    if (opt.abandon && (r.abandoned = opt.abandon(dual_at(h, r.cells)))) break;  // OmtOptions::abandon
     // The Jacobian of the masses (eq. 3.28 on the surface): the weighted graph Laplacian of
     // the cells' sides, dm_i/dh_j = -w_ij, dm_i/dh_i = sum_j w_ij; without the held height.
     const Eigen::VectorXd g = r.cells.mass - nu;
@@ -384,7 +385,7 @@ SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3&
   }
   r.dual_value = dual_at(h, r.cells);
   r.h = h.array() - h.mean();
-  r.converged = r.max_relative_error <= opt.tolerance || gap_closed;
+  r.converged = (r.max_relative_error <= opt.tolerance || gap_closed) && !r.abandoned;
   return r;
 }
 

@@ -67,6 +67,7 @@ struct SurfaceOmtResult {
   /// When the solve stopped by OmtOptions::dual_gap_tolerance: the Newton step's predicted
   /// rise of the dual to its maximum (dual_value + dual_rise estimates W2^2 to third order).
   double dual_rise = 0;
+  bool abandoned = false;  // stopped by OmtOptions::abandon (converged is then false)
 };
 
 /// Semi-discrete transport from the surface's density to the sites with masses nu (scaled to

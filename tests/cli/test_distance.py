@@ -122,6 +122,28 @@ def refined(name, level):
     return path, v, f
 
 
+# ---- the turn chosen by the exact cost (--exact-rotation), certified by lower bounds -----------
+# mushroom x three_peaks is near-symmetric: the OMT-map distance has several local minima.
+pair = [mesh("mushroom"), mesh("three_peaks")]
+plain, search = distance(*pair), distance(*pair, "--exact-rotation")
+if plain and search:
+    cands = search["rotation_candidates"]
+    check(search["converged"] and search["rotation_certified"] and not plain["rotation_certified"],
+          f"--exact-rotation: certified {search['rotation_certified']}, plain {plain['rotation_certified']}")
+    check(len(cands) >= 2 and any(c["abandoned"] for c in cands) and search["distance"] <= plain["distance"],
+          f"--exact-rotation: {len(cands)} candidates, {search['distance']} against {plain['distance']}")
+    floor = search["distance"] * (1 - 0.5e-6)
+    check(all((c["lower_bound"] > floor) if c["abandoned"] else (c["distance"] >= floor) for c in cands),
+          f"--exact-rotation: a candidate below the chosen distance: {cands}")
+    # POT (independent) agrees on the ordering where the bounds separate clearly: a candidate
+    # whose lower bound is 2 % above the chosen distance costs POT more than the chosen turn.
+    far = [c for c in cands if c["lower_bound"] > 1.02 * search["distance"]][:2]
+    check(len(far) > 0, f"--exact-rotation: no clearly worse candidate among {cands}")
+    at_chosen = pot_distance(pair[0], pair[1], search["rotation_rad"])
+    for c in far:
+        at_c = pot_distance(pair[0], pair[1], c["rotation_rad"])
+        check(at_c > at_chosen, f"POT at turn {c['rotation_rad']:.4f}: {at_c:.5f}, at the chosen {at_chosen:.5f}")
+
 gaps, raw_gaps = [], []
 for level in range(2):
     paths = [refined(name, level)[0] for name in ["nefertiti", "mesh_with_border"]]

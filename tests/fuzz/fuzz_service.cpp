@@ -161,6 +161,7 @@ void fill_shape_options(FuzzedDataProvider& in, Spec& s) {
     s.mutable_wasserstein()->set_tolerance(fuzz_double(in));
     s.mutable_wasserstein()->set_cost_tolerance(fuzz_double(in));
     s.mutable_wasserstein()->set_refine_rotation(in.ConsumeBool());
+    s.mutable_wasserstein()->set_exact_rotation(in.ConsumeBool());
     s.mutable_wasserstein()->set_raw(in.ConsumeBool());
   }
 }

@@ -159,6 +159,74 @@ TEST(Distance, TheRotationSearchFindsTheBruteForceMinimum) {
   EXPECT_GT(best_shift, 0) << "a test where the turn matters";
 }
 
+namespace {
+
+// The exact distance of one candidate (both directions solved to the end), debiased.
+double candidate_distance(const Shape& a, const Shape& b, const distance::PairResult::Candidate& c, bool sphere) {
+  const Eigen::Vector3d flips[4] = {{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1, 1}};
+  Eigen::VectorXd h1, h2;
+  const distance::TransportCost f = sphere ? distance::transport_cost_sphere(a, b, flips[c.frame], {}, h1)
+                                           : distance::transport_cost(a, b, c.rotation, {}, h1);
+  const distance::TransportCost g = sphere ? distance::transport_cost_sphere(b, a, flips[c.frame], {}, h2)
+                                           : distance::transport_cost(b, a, -c.rotation, {}, h2);
+  EXPECT_TRUE(f.converged && g.converged);
+  return 0.5 * (std::sqrt(std::max(0.0, f.w2_squared - b.quantization)) +
+                std::sqrt(std::max(0.0, g.w2_squared - a.quantization)));
+}
+
+// The certificate of WassersteinOptions::exact_rotation, checked: the search did not do worse
+// than the OMT-map's choice; every other candidate either converged above the chosen distance
+// less the tolerance or was abandoned with a lower bound above it, and that lower bound is
+// below the candidate's own exact distance (weak duality: it is a bound, not a guess).
+void expect_certified_search(const Shape& a, const Shape& b, bool sphere, size_t min_candidates) {
+  distance::WassersteinOptions o;
+  o.exact_rotation = true;
+  const distance::PairResult search = distance::wasserstein(a, b, o), plain = distance::wasserstein(a, b);
+  ASSERT_TRUE(search.converged && plain.converged);
+  EXPECT_TRUE(search.rotation_certified);
+  EXPECT_FALSE(plain.rotation_certified);
+  ASSERT_GE(search.candidates.size(), min_candidates);
+  EXPECT_LE(search.distance, plain.distance * (1 + 1e-12));
+  const double floor = search.distance * (1 - 0.5 * a.cost_tolerance);
+  int abandoned = 0;
+  for (const distance::PairResult::Candidate& c : search.candidates) {
+    if (!c.abandoned) {
+      ASSERT_TRUE(std::isfinite(c.distance));
+      EXPECT_GE(c.distance, floor);
+      continue;
+    }
+    ++abandoned;
+    EXPECT_GT(c.lower_bound, floor);
+    const double exact = candidate_distance(a, b, c, sphere);
+    EXPECT_LE(c.lower_bound, exact * (1 + 1e-9)) << "frame " << c.frame << ", turn " << c.rotation;
+  }
+  EXPECT_GT(abandoned, 0) << "a test where some candidate is dropped by its bound";
+}
+
+}  // namespace
+
+TEST(Distance, TheExactTurnSearchIsCertifiedByLowerBoundsThatHold) {
+  const Shape a = distance::prepare_shape(bumped_disk(10, 0.3, 0.1, 0.7), "a", small_quadrature());
+  const Shape b = distance::prepare_shape(bumped_disk(10, -0.25, 0.2, 0.6), "b", small_quadrature());
+  expect_certified_search(a, b, false, 2);
+}
+
+TEST(Distance, TheExactFrameSearchOnTheSphereIsCertifiedByLowerBoundsThatHold) {
+  ShapeOptions o = small_quadrature();
+  o.sphere = true;
+  // Two ellipsoids with a bump each, placed off their axes: no symmetry makes the frame's
+  // sign choices tie.
+  mesh::TriMesh p = mesh::make_icosphere(3), q = p;
+  const Eigen::RowVector3d at_p = Eigen::RowVector3d(1, 0.6, 0.8).normalized(), at_q = Eigen::RowVector3d(-0.5, 1, 0.3).normalized();
+  for (int v = 0; v < p.num_vertices(); ++v) {
+    const Eigen::RowVector3d x = p.V.row(v), e = x.cwiseProduct(Eigen::RowVector3d(1.6, 1.0, 0.7));
+    p.V.row(v) = e * (1 + 0.3 * std::exp(-8 * (1 - x.dot(at_p))));
+    q.V.row(v) = e * (1 + 0.3 * std::exp(-8 * (1 - x.dot(at_q))));
+  }
+  const Shape P = distance::prepare_shape(p, "p", o), Q = distance::prepare_shape(q, "q", o);
+  expect_certified_search(P, Q, true, 4);
+}
+
 TEST(Distance, MarkersFixTheTurnAndMustBeGivenForBoth) {
   ShapeOptions marked = small_quadrature();
   const mesh::TriMesh m = bumped_disk(8, 0.3, 0.1, 0.5);

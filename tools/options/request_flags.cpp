@@ -91,6 +91,10 @@ void ShapeFlags::add_to(CLI::App* cmd) {
   cmd->add_flag("--refine-rotation", r.refine_rotation,
                 "wasserstein without markers: refine the rotation beyond the quadrature's step by exact "
                 "evaluations (3-4 times the work)");
+  cmd->add_flag("--exact-rotation", r.exact_rotation,
+                "wasserstein without markers: choose the turn (disk: among the OMT-map distance's local "
+                "minima within 10 %) or the frame's half-turn (sphere) by the exact cost, with lower "
+                "bounds as the certificate (rotation_candidates in the JSON; several times the work)");
   cmd->add_flag("--raw", r.raw, "wasserstein: eq. 3.31 as it stands, without removing the sites' quantization cost");
   cmd->add_option("--rings", r.rings, "quadrature rings of the OMT-map samples (default 64)")->check(CLI::Range(1, 4096));
   cmd->add_option("--angles", r.angles, "quadrature angles per ring (default 256)")->check(CLI::Range(4, 65536));
