@@ -276,6 +276,17 @@ TEST(Service, DistanceAndMatrixRoundTripsGiveTheEnginesAnswer) {
   pb::SubmitJobRequest disk_on_sphere = rs;
   disk_on_sphere.mutable_distance()->set_b(a);
   EXPECT_STATUS(c.submit(disk_on_sphere);, INVALID_ARGUMENT, "is a disk mesh; the sphere domain needs a closed genus-0 surface");
+  // The frame's half-turn chosen by the exact cost: the request's field reaches the engine,
+  // and the report carries the certificate with all four candidates.
+  pb::SubmitJobRequest exact = rs;
+  exact.mutable_distance()->mutable_wasserstein()->set_exact_rotation(true);
+  const pb::Job je = c.watch(c.submit(exact).id());
+  ASSERT_EQ(je.state(), pb::SUCCEEDED) << je.error().message();
+  const nlohmann::json exact_report = nlohmann::json::parse(c.fetch(je.id()));
+  EXPECT_TRUE(exact_report["rotation_certified"].get<bool>());
+  EXPECT_EQ(exact_report["rotation_candidates"].size(), 4u);
+  EXPECT_LE(je.result().distance(), js.result().distance() * (1 + 1e-12));
+  EXPECT_EQ(nlohmann::json::parse(c.fetch(js.id()))["rotation_candidates"].size(), 1u);
   pb::SubmitJobRequest turned = rs;  // turns are a disk's; the sphere compares its frame's half-turns
   turned.mutable_distance()->mutable_wasserstein()->set_refine_rotation(true);
   EXPECT_STATUS(c.submit(turned);, INVALID_ARGUMENT, "refine_rotation applies to the disk domain");
