@@ -64,6 +64,7 @@ std::string matrix_fingerprint(const std::vector<ShapeInput>& shapes, const Matr
     std::snprintf(buf, sizeof buf, ";refine=%d;debias=%d", opt.wasserstein.refine_rotation ? 1 : 0,
                   opt.wasserstein.debias ? 1 : 0);
     out += buf;
+    if (opt.wasserstein.exact_rotation) out += ";exact_rotation=1";  // (absent: the settings of earlier tiles)
   }
   return out;
 }
