@@ -205,8 +205,7 @@ double omt_linear_frame(const Shape& a, const Shape& b, int g) {
   return std::sqrt(sum * 4 * M_PI / (static_cast<double>(a.rings) * a.angles));
 }
 
-// (`frame`, if given, gets the half-turn chosen: an index of kFlips.)
-PairResult omt_linear_sphere(const Shape& a, const Shape& b, int* frame = nullptr) {
+PairResult omt_linear_sphere(const Shape& a, const Shape& b) {
   PairResult out;
   out.distance = std::numeric_limits<double>::infinity();
   for (int g = 0; g < 4; ++g) {
@@ -214,7 +213,6 @@ PairResult omt_linear_sphere(const Shape& a, const Shape& b, int* frame = nullpt
     if (d < out.distance) {
       out.distance = d;
       out.normalization = std::string("Moebius centring, principal frames, ") + kFrameNames[g] + " of the second shape";
-      if (frame) *frame = g;
     }
   }
   out.normalization += " (the best of the frame's four sign choices)";
@@ -349,7 +347,8 @@ Eval PairSolver::sphere(int g, double ceiling) {
 // The candidates after the first: each solved while it may still beat `best` by more than
 // the distance's tolerance (half the transports' relative cost tolerance, as d = sqrt(W2^2)),
 // and taken only if it does (within the tolerance the OMT-map's choice stands: shapes with a
-// symmetry have several turns equal up to round-off). `certify`: the search was asked for. `solve(candidate, ceiling)` gives its Eval; `omt_map` its OMT-map distance.
+// symmetry have several turns equal up to round-off). `certify`: the search was asked for;
+// `solve(k, ceiling)` gives candidate k's Eval, `omt_map[k]` its OMT-map distance.
 template <class Solve>
 void search_candidates(int count, const Shape& a, bool certify, Eval& best, PairResult& out, Solve solve,
                        const std::vector<double>& omt_map) {
@@ -396,24 +395,16 @@ PairResult wasserstein_sphere(const Shape& a, const Shape& b, const WassersteinO
   PairResult out;
   out.sphere_frames = true;
   PairSolver solver(a, b, opt);
-  int first = 0;
-  const PairResult frame = omt_linear_sphere(a, b, &first);
-  std::vector<int> order = {first};
-  for (int g = 0; g < 4 && opt.exact_rotation; ++g)
-    if (g != first) order.push_back(g);
+  // The half-turns by their OMT-map distance, ties in index order: the first is
+  // omt_linear_sphere's choice, the others the likelier to win first.
+  double frame_distance[4];
+  for (int g = 0; g < 4; ++g) frame_distance[g] = omt_linear_frame(a, b, g);
+  std::vector<int> order = {0, 1, 2, 3};
+  std::stable_sort(order.begin(), order.end(), [&](int p, int q) { return frame_distance[p] < frame_distance[q]; });
+  if (!opt.exact_rotation) order.resize(1);
   std::vector<double> omt_map;
-  for (int g : order) omt_map.push_back(omt_linear_frame(a, b, g));
-  // The others in the order of their OMT-map distance (the likelier to win first).
-  std::vector<int> rank(order.size());
-  for (size_t k = 0; k < rank.size(); ++k) rank[k] = static_cast<int>(k);
-  std::stable_sort(rank.begin() + 1, rank.end(), [&](int p, int q) { return omt_map[p] < omt_map[q]; });
-  std::vector<int> sorted_order;
-  std::vector<double> sorted_map;
-  for (int k : rank) sorted_order.push_back(order[k]), sorted_map.push_back(omt_map[k]);
-  order.swap(sorted_order);
-  omt_map.swap(sorted_map);
-  Eval best = solver.sphere(first, std::numeric_limits<double>::infinity());
-  out.newton_iterations = 0;
+  for (int g : order) omt_map.push_back(frame_distance[g]);
+  Eval best = solver.sphere(order[0], std::numeric_limits<double>::infinity());
   search_candidates(static_cast<int>(order.size()), a, opt.exact_rotation, best, out,
                     [&](int k, double ceiling) { return solver.sphere(order[k], ceiling); }, omt_map);
   out.normalization = std::string("Moebius centring, principal frames, ") + kFrameNames[best.frame] +
