@@ -158,6 +158,9 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, c
   // density differs (measured, source three_peaks to mushroom's sites: 24 Newton iterations
   // where Alg. 2's Voronoi start took 52).
   o.initial_h = h.size() ? h : dst.h;
+  // Real shapes' densities span orders of magnitude, which that start does not meet: the
+  // coarse-to-fine start (bench/RESULTS.md, issue 23 session 19).
+  o.multilevel = true;
   return transport_to(dst, progress, abandon, o, h,
                       [&](const omt::OmtOptions& oo) { return omt::solve_omt(domain, sites, dst.mass, oo); });
 }

@@ -5,6 +5,7 @@
 
 #include <Eigen/Core>
 #include <functional>
+#include <optional>
 
 #include "omt/power_diagram.hpp"
 
@@ -24,6 +25,16 @@ struct OmtOptions {
   /// it leaves no cell empty and is nearer the targets than the Voronoi diagram of Alg. 2
   /// (which is the start otherwise).
   Eigen::VectorXd initial_h;
+  /// Planar domains: where the start (initial_h or Voronoi) leaves a cell more than 10x
+  /// off its target and there are at least 1,000 sites, start instead from a coarse-to-fine
+  /// solve (multilevel.cpp): a quarter of the sites, carrying the masses of the sites
+  /// nearest each, is solved first (recursively, by the same rule) and the fine heights
+  /// start from the smoothed Legendre transform of its Brenier potential. Where the source
+  /// density varies by orders of magnitude (conformal images of real shapes), the plain
+  /// start spends most of its Newton iterations in the damped phase; here most of those run
+  /// on the coarse levels, at a fraction of the cost. If the solve from that start does not
+  /// converge, it is solved again from the plain start, so it answers wherever that does.
+  bool multilevel = false;
   /// Also stop, on a planar domain, once the transport's cost is known to this relative
   /// accuracy though its cells are not yet within `tolerance` (0: off). For callers that
   /// want the cost, not the map (the Wasserstein distance). The Kantorovich dual
@@ -61,6 +72,8 @@ struct OmtResult {
   /// cost to third order). 0 otherwise.
   double dual_rise = 0;
   bool abandoned = false;  // stopped by OmtOptions::abandon (converged is then false)
+  int levels = 1;          // OmtOptions::multilevel: the levels the start came from, this one included
+  int coarse_iterations = 0;  // of `iterations`, those spent on the coarse levels
 };
 
 /// Throws Error(kInvalidArgument) unless there are sites, one positive finite target mass per
@@ -80,5 +93,14 @@ void check_transport_input(int sites, const Eigen::VectorXd& nu, const OmtOption
 /// max_relative_error <= tolerance, or the dual gap test of OmtOptions::dual_gap_tolerance.
 OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu,
                     const OmtOptions& options = {});
+
+namespace detail {
+/// OmtOptions::multilevel's start (multilevel.cpp): heights for the sites from the solve of
+/// a 1/4 subset carrying their masses, or nothing if that solve did not converge; adds the
+/// coarse levels' iterations and count to `r`.
+std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, const Points& sites,
+                                                      const Eigen::VectorXd& nu, const OmtOptions& options,
+                                                      OmtResult& r);
+}  // namespace detail
 
 }  // namespace brenier::omt
