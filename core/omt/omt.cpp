@@ -172,8 +172,8 @@ void try_warm_start(const PowerDiagrams& diagram, const Eigen::VectorXd& initial
 
 // OmtOptions::multilevel: the coarse-to-fine heights, taken if they leave no cell empty --
 // whatever the norm says: a start far off in a few cells can lose to Voronoi in the norm
-// while far nearer the solution elsewhere (lion-head's sites from mannequin-devil's density:
-// 71 against 67, and Voronoi then took 28 Newton iterations where the transfer took 21).
+// while far nearer the solution elsewhere (lion-head's sites from mannequin-devil's density,
+// 2,089-site level: 71 against 67, and Voronoi then took 28 Newton iterations, the transfer 25).
 void coarse_start(const Domain& domain, const PowerDiagrams& diagram, const Points& sites, const OmtOptions& opt,
                   Offsets& psi, OmtResult& r) {
   const std::optional<Eigen::VectorXd> h = detail::coarse_to_fine_heights(domain, sites, r.target, opt, r);
