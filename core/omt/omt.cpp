@@ -182,7 +182,10 @@ void coarse_start(const Domain& domain, const PowerDiagrams& diagram, const Poin
   std::optional<PowerCells> c = diagram.at_offsets_if_none_hidden(start);
   if (c && c->empty_cells > 0 && c->empty_cells <= std::max(1, static_cast<int>(sites.rows()) / 100))
     reopen_empty_cells(diagram, start, c);
-  if (!c || c->empty_cells > 0) return;
+  if (!c || c->empty_cells > 0) {
+    r.levels = 1;  // not taken: the start is the plain one
+    return;
+  }
   psi = Offsets(static_cast<int>(sites.rows()));
   psi.hi = std::move(start);
   r.cells = std::move(*c);
@@ -333,10 +336,10 @@ bool line_search(const PowerDiagrams& diagram, const Eigen::VectorXd& dh, double
 
 }  // namespace
 
-// Alg. 2: damped Newton on the heights h of the power diagram until every cell's mass meets
-// its target (eq. 3.27 the gradient, eq. 3.28 the Hessian).
 namespace {
 
+// Alg. 2: damped Newton on the heights h of the power diagram until every cell's mass meets
+// its target (eq. 3.27 the gradient, eq. 3.28 the Hessian).
 OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu_in, const OmtOptions& opt) {
   const int n = static_cast<int>(sites.rows());
   check_transport_input(n, nu_in, opt);

@@ -97,7 +97,8 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
 namespace detail {
 /// OmtOptions::multilevel's start (multilevel.cpp): heights for the sites from the solve of
 /// a 1/4 subset carrying their masses, or nothing if that solve did not converge; adds the
-/// coarse levels' iterations and count to `r`.
+/// coarse levels' iterations to `r` and sets r.levels (the caller resets it to 1 if it does
+/// not take the heights).
 std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, const Points& sites,
                                                       const Eigen::VectorXd& nu, const OmtOptions& options,
                                                       OmtResult& r);
