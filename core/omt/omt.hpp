@@ -26,7 +26,8 @@ struct OmtOptions {
   /// (which is the start otherwise).
   Eigen::VectorXd initial_h;
   /// Planar domains: where the start (initial_h or Voronoi) leaves a cell more than 10x
-  /// off its target and there are at least 1,000 sites, start instead from a coarse-to-fine
+  /// off its target, there are at least 1,000 sites and the first Newton step from that
+  /// start is damped below 1/4, start instead from a coarse-to-fine
   /// solve (multilevel.cpp): a quarter of the sites, carrying the masses of the sites
   /// nearest each, is solved first (recursively, by the same rule) and the fine heights
   /// start from the smoothed Legendre transform of its Brenier potential. Where the source

@@ -1055,6 +1055,16 @@ TEST(SurfaceCells, SideWeightsAreTheMassesDerivatives) {
   }
 }
 
+// The transport solved to 1e-9 plainly and with OmtOptions::multilevel.
+std::pair<omt::OmtResult, omt::OmtResult> plain_and_multilevel(const Domain& d, const Points& y,
+                                                                const Eigen::VectorXd& nu) {
+  omt::OmtOptions o;
+  o.tolerance = 1e-9;
+  omt::OmtResult plain = omt::solve_omt(d, y, nu, o);
+  o.multilevel = true;
+  return {std::move(plain), omt::solve_omt(d, y, nu, o)};
+}
+
 TEST(Omt, TheMultilevelSolveReachesThePlainSolvesTransport) {
   // A source density spanning e^10 over a disk mesh and 4,000 sites crowded toward one side
   // (as a real shape's conformal image puts them): the coarse-to-fine solve must meet every
@@ -1072,12 +1082,7 @@ TEST(Omt, TheMultilevelSolveReachesThePlainSolvesTransport) {
   for (int i = 0; i < y.rows(); ++i) y(i, 0) = -0.95 + 1.9 * std::pow((y(i, 0) + 0.95) / 1.9, 3);
   Eigen::VectorXd nu(4000);
   for (int i = 0; i < 4000; ++i) nu[i] = 1 + y(i, 1) * y(i, 1);
-  omt::OmtOptions o;
-  o.tolerance = 1e-9;
-  const auto plain = omt::solve_omt(d, y, nu, o);
-  omt::OmtOptions ml = o;
-  ml.multilevel = true;
-  const auto multi = omt::solve_omt(d, y, nu, ml);
+  const auto [plain, multi] = plain_and_multilevel(d, y, nu);
   ASSERT_TRUE(plain.converged) << plain.max_relative_error;
   ASSERT_TRUE(multi.converged) << multi.max_relative_error;
   EXPECT_EQ(multi.levels, 3);
@@ -1090,9 +1095,39 @@ TEST(Omt, TheMultilevelSolveReachesThePlainSolvesTransport) {
   EXPECT_GT(multi.coarse_iterations, 0);
   EXPECT_EQ(plain.coarse_iterations, 0);
   // Below 1,000 sites it is the plain solve, step for step.
-  const auto small = omt::solve_omt(d, y.topRows(900), nu.head(900), ml);
-  const auto small_plain = omt::solve_omt(d, y.topRows(900), nu.head(900), o);
+  const auto [small_plain, small] = plain_and_multilevel(d, y.topRows(900), nu.head(900));
   EXPECT_EQ(small.levels, 1);
   EXPECT_EQ(small.iterations, small_plain.iterations);
   EXPECT_EQ(small.h, small_plain.h);
+}
+
+TEST(Omt, TheMultilevelStartIsTakenOnlyWhereTheFirstNewtonStepIsDamped) {
+  // Uniform sites and equal targets over a density e^(a x): the Voronoi start is 15x off in
+  // its densest cells at a = 2 and 24x at a = 3, both past the 10x that lets the coarse
+  // levels run. At a = 2 the first Newton step is not damped below 1/4, so the solve stays
+  // plain, step for step; at a = 3 it is, and the coarse-to-fine start is taken.
+  mesh::TriMesh m = mesh::make_disk(40);
+  const Points V = m.V.leftCols(2);
+  const Points y = random_in_disk(2000, 5);
+  const Eigen::VectorXd nu = Eigen::VectorXd::Ones(2000);
+  for (const double a : {2.0, 3.0}) {
+    Eigen::VectorXd rho(m.num_faces());
+    for (int f = 0; f < m.num_faces(); ++f)
+      rho[f] = std::exp(a * (V(m.F(f, 0), 0) + V(m.F(f, 1), 0) + V(m.F(f, 2), 0)) / 3);
+    const Domain d = Domain::piecewise_constant(V, m.F, rho);
+    const auto [plain, multi] = plain_and_multilevel(d, y, nu);
+    const auto voronoi = omt::power_cells(d, y, -0.5 * y.rowwise().squaredNorm());
+    EXPECT_GT(max_relative(voronoi.mass, plain.target), 10) << a;
+    ASSERT_TRUE(plain.converged && multi.converged) << a;
+    EXPECT_LE(max_relative(multi.cells.mass, multi.target), 1e-9);
+    if (a == 2.0) {
+      EXPECT_EQ(multi.levels, 1);
+      EXPECT_EQ(multi.iterations, plain.iterations);
+      EXPECT_EQ(multi.h, plain.h);
+    } else {
+      EXPECT_EQ(multi.levels, 2);
+      EXPECT_GT(multi.coarse_iterations, 0);
+      EXPECT_LT((multi.h - plain.h).cwiseAbs().maxCoeff(), 1e-6);
+    }
+  }
 }
