@@ -2,11 +2,12 @@
 """Shape distances on real meshes (issue 23): every pair among the real disk meshes of
 data/meshes and a set of real sphere meshes, each with a deformed and a remeshed copy, beside
 POT's exact EMD on the same vertex measures. One line per pair: brenier's pair time (the
-two directions and the rotation search, without the shapes' own maps), its Newton
+two directions and the rotation search, without the shapes' own maps; the median of
+--repeats cold runs, since single runs on a shared 2-core machine move by 20 %), its Newton
 iterations, POT's time for one EMD and the ratio; then the medians and the slowest ratios.
 
 Usage: bench_real_pairs.py BRENIER_COMPUTE DATA_DIR WORK_DIR [--disk a,b,...] [--sphere a,...]
-                           [--copies] [--pot-max N] [--min-vertices N] [--json]
+                           [--copies] [--pot-max N] [--min-vertices N] [--repeats N] [--json]
 """
 import argparse
 import itertools
@@ -50,20 +51,26 @@ def shapes(data, work, names, copies):
 def run_pair(o, a, b, sphere, rows):
     name = f"{os.path.basename(a)[:-4]} x {os.path.basename(b)[:-4]}"
     cmd = [o.exe, "distance", a, b, "--json"] + (["--domain", "sphere"] if sphere else [])
+    times = []
     try:
-        out, wall, mb = measured(cmd)
-        if not out.strip():  # again, for the tool's one line saying why
-            raise SystemExit(subprocess.run(cmd, capture_output=True, text=True).stderr.strip() or "no result")
+        for _ in range(max(1, o.repeats)):
+            out, wall, mb = measured(cmd)
+            if not out.strip():  # again, for the tool's one line saying why
+                raise SystemExit(subprocess.run(cmd, capture_output=True, text=True).stderr.strip() or "no result")
+            j = json.loads(out)
+            times.append(j["seconds"]["pair"])
     except SystemExit as e:  # refused or failed: say so, go on
         rows.append({"pair": name, "sphere": sphere, "refused": str(e)})
         print(f"{name}: REFUSED {str(e).strip().splitlines()[-1]}", flush=True)
         return
-    j = json.loads(out)
     n = [s["vertices"] for s in j["shapes"]]
+    pair = statistics.median(times)
     row = {"pair": name, "sphere": sphere, "vertices": n, "distance": j["distance"], "converged": j["converged"],
-           "pair_seconds": j["seconds"]["pair"], "newton_iterations": j["newton_iterations"], "peak_mb": mb}
+           "pair_seconds": pair, "pair_seconds_runs": times, "newton_iterations": j["newton_iterations"],
+           "peak_mb": mb}
     d = "NOT CONVERGED" if j["distance"] is None else f"{j['distance']:.5f}"
-    line = (f"{name} ({n[0]} x {n[1]}): d = {d}, pair {j['seconds']['pair']:.3f} s, "
+    spread = f" (median of {len(times)}: {min(times):.3f}-{max(times):.3f})" if len(times) > 1 else ""
+    line = (f"{name} ({n[0]} x {n[1]}): d = {d}, pair {pair:.3f} s{spread}, "
             f"{j['newton_iterations']} Newton iterations")
     if max(n) <= o.pot_max:
         if sphere:
@@ -102,6 +109,7 @@ def main():
     ap.add_argument("--copies", action="store_true", help="add a deformed and a remeshed copy of each mesh")
     ap.add_argument("--pot-max", type=int, default=30000, help="largest mesh POT is run on")
     ap.add_argument("--min-vertices", type=int, default=5000)
+    ap.add_argument("--repeats", type=int, default=3, help="cold runs of brenier per pair (the median is reported)")
     ap.add_argument("--json", action="store_true")
     o = ap.parse_args()
     os.makedirs(o.work, exist_ok=True)

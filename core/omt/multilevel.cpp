@@ -87,6 +87,7 @@ std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, cons
   co.max_iterations = opt.max_iterations;
   co.progress = opt.progress;
   co.multilevel = true;
+  co.multilevel_probe = false;  // the level above was damped: so is this one, as a rule
   if (opt.initial_h.size() == n) {
     co.initial_h.resize(m);
     for (int k = 0; k < m; ++k) co.initial_h[k] = opt.initial_h[keep[k]];

@@ -368,6 +368,10 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
   // of the start's cells told the two apart (bench/RESULTS.md, sessions 19-20).
   bool probing = opt.multilevel && r.max_relative_error > 10 && n >= 1000 && !domain.is_sphere;
   constexpr double kDampedStep = 0.25;
+  if (probing && !opt.multilevel_probe) {
+    probing = false;
+    coarse_start(domain, diagram, sites, opt, psi, r);
+  }
   if (n == 1) {
     r.h = Eigen::VectorXd::Zero(1);
     r.converged = true;

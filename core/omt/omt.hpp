@@ -36,6 +36,10 @@ struct OmtOptions {
   /// on the coarse levels, at a fraction of the cost. If the solve from that start does not
   /// converge, it is solved again from the plain start, so it answers wherever that does.
   bool multilevel = false;
+  /// With `multilevel`: whether the first Newton step decides (above). Off, the
+  /// coarse-to-fine start is taken wherever the start is 10x off: how the coarse levels are
+  /// solved, below a level whose own first step was damped.
+  bool multilevel_probe = true;
   /// Also stop, on a planar domain, once the transport's cost is known to this relative
   /// accuracy though its cells are not yet within `tolerance` (0: off). For callers that
   /// want the cost, not the map (the Wasserstein distance). The Kantorovich dual
