@@ -364,7 +364,7 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
   // OmtOptions::multilevel: the first Newton step from the plain start decides. Where it is
   // damped below 1/4 (real shapes' densities: 1/128..1/8, and dozens of damped steps
   // follow), the coarse-to-fine start is taken instead; where it is not (the synthetic
-  // height fields: 1/2, and 13 Newton steps in all), the plain solve goes on. No statistic
+  // height fields: 1/2, and a handful of full steps after it), the plain solve goes on. No statistic
   // of the start's cells told the two apart (bench/RESULTS.md, sessions 19-20).
   bool probing = opt.multilevel && r.max_relative_error > 10 && n >= 1000 && !domain.is_sphere;
   constexpr double kDampedStep = 0.25;
@@ -424,10 +424,11 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
     if (gap_closed) break;
     if (std::exchange(probing, false) && !accepted) {  // counted as an iteration: it cost one
       coarse_start(domain, diagram, sites, opt, psi, r);
-      if (r.levels == 1) continue;  // not taken: the plain solve goes on
-      eps0 = kmt_floor(domain, sites, r);
-      g = r.cells.mass - nu;
-      directions.forget();
+      if (r.levels > 1) {  // taken (if not, the plain solve goes on from where it was)
+        eps0 = kmt_floor(domain, sites, r);
+        g = r.cells.mass - nu;
+        directions.forget();
+      }
       continue;
     }
     r.max_relative_error = max_relative(r.cells.mass, nu);
