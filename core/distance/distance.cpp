@@ -141,6 +141,7 @@ TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Ei
   for (Eigen::Index i = 0; i < sites.rows(); ++i) sites.row(i) = sites.row(i).cwiseProduct(flip.transpose());
   omt::OmtOptions o;
   if (h.size()) o.initial_h = h;
+  o.multilevel = true;  // real shapes' sphere densities span orders of magnitude too
   return transport_to(dst, progress, abandon, o, h,
                       [&](const omt::OmtOptions& oo) { return omt::solve_surface_omt(*src.surface, sites, dst.mass, oo); });
 }

@@ -12,6 +12,7 @@
 #include "common/error.hpp"
 #include "common/parallel.hpp"
 #include "numeric/krylov.hpp"
+#include "omt/coarse_to_fine.hpp"
 
 namespace brenier::omt {
 
@@ -450,16 +451,7 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
 }  // namespace
 
 OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu, const OmtOptions& opt) {
-  OmtResult r = solve(domain, sites, nu, opt);
-  if (r.levels == 1 || r.converged || r.abandoned) return r;
-  // The coarse-to-fine start led nowhere (no step accepted from it, say): solved again from
-  // the plain start, so that OmtOptions::multilevel never costs an answer.
-  OmtOptions plain = opt;
-  plain.multilevel = false;
-  const int spent = r.iterations;
-  r = solve(domain, sites, nu, plain);
-  r.iterations += spent;
-  return r;
+  return detail::with_plain_fallback(opt, [&](const OmtOptions& o) { return solve(domain, sites, nu, o); });
 }
 
 }  // namespace brenier::omt

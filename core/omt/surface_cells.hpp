@@ -68,6 +68,8 @@ struct SurfaceOmtResult {
   /// rise of the dual to its maximum (dual_value + dual_rise estimates W2^2 to third order).
   double dual_rise = 0;
   bool abandoned = false;  // stopped by OmtOptions::abandon (converged is then false)
+  int levels = 1;          // OmtOptions::multilevel: the levels the start came from, this one included
+  int coarse_iterations = 0;  // of `iterations`, those spent on the coarse levels
 };
 
 /// Semi-discrete transport from the surface's density to the sites with masses nu (scaled to
@@ -76,7 +78,9 @@ struct SurfaceOmtResult {
 /// target and the start's smallest cell), one set of surface cells per trial step, each
 /// Newton system factored afresh (CHOLMOD). options.tolerance: max relative cell-mass
 /// error, or options.dual_gap_tolerance as in solve_omt; options.initial_h: the start
-/// (default 0: for sites on the unit sphere, the spherical Voronoi diagram).
+/// (default 0: for sites on the unit sphere, the spherical Voronoi diagram);
+/// options.multilevel: as in solve_omt, where the start is 10x off and there are at least
+/// 1,000 sites (without the first-step trial).
 SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& nu,
                                    const OmtOptions& options = {});
 

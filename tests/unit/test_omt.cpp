@@ -1002,6 +1002,43 @@ TEST(SurfaceOmt, TheDualGapTestStopsEarlyWithTheSameCost) {
   EXPECT_LE(quick.max_relative_error, 0.25);
 }
 
+TEST(SurfaceOmt, TheMultilevelSolveReachesThePlainSolvesTransport) {
+  // A density e^(4z) on the sphere (spanning e^8 from pole to pole) and 1,600 random sites
+  // with equal masses: the spherical Voronoi start is far more than 10x off in the densest
+  // cells, so the coarse-to-fine start runs (1,600 -> 400 sites); both solves must meet every
+  // target with the same cost and the same heights up to a constant.
+  const mesh::TriMesh m = mesh::make_icosphere(4);
+  omt::SurfaceDensity S;
+  S.vertices = m.V;
+  S.faces = m.F;
+  S.density.resize(m.num_faces());
+  for (int f = 0; f < m.num_faces(); ++f)
+    S.density[f] = std::exp(4 * (m.V(m.F(f, 0), 2) + m.V(m.F(f, 1), 2) + m.V(m.F(f, 2), 2)) / 3);
+  std::mt19937 rng(21);
+  std::normal_distribution<double> N;
+  omt::Points3 y(1600, 3);
+  for (int i = 0; i < 1600; ++i) y.row(i) = Eigen::Vector3d(N(rng), N(rng), N(rng)).normalized().transpose();
+  const Eigen::VectorXd nu = Eigen::VectorXd::Ones(1600);
+  const omt::SurfaceCells voronoi = omt::surface_power_cells(S, y, Eigen::VectorXd::Zero(1600));
+  const Eigen::VectorXd target = nu * (S.mass() / nu.sum());
+  EXPECT_GT(max_relative(voronoi.mass, target), 10);
+  omt::OmtOptions o;
+  o.tolerance = 1e-9;
+  const omt::SurfaceOmtResult plain = omt::solve_surface_omt(S, y, nu, o);
+  o.multilevel = true;
+  const omt::SurfaceOmtResult multi = omt::solve_surface_omt(S, y, nu, o);
+  ASSERT_TRUE(plain.converged) << plain.max_relative_error;
+  ASSERT_TRUE(multi.converged) << multi.max_relative_error;
+  EXPECT_EQ(plain.levels, 1);
+  EXPECT_EQ(multi.levels, 2);
+  EXPECT_GT(multi.coarse_iterations, 0);
+  EXPECT_LT(multi.iterations - multi.coarse_iterations, plain.iterations);  // fewer fine-level steps
+  EXPECT_EQ(multi.cells.empty_cells, 0);
+  EXPECT_LE(max_relative(multi.cells.mass, multi.target), 1e-9);
+  EXPECT_NEAR(multi.dual_value, plain.dual_value, 1e-9 * plain.dual_value);
+  EXPECT_LT((multi.h - plain.h).cwiseAbs().maxCoeff(), 1e-6);  // both have mean zero
+}
+
 TEST(SurfaceOmt, SymmetricSitesWithEqualMassesGetSymmetricHeights) {
   // The 42 vertices of a once-subdivided icosahedron, equal masses, the uniform density on
   // a thrice-subdivided one: the icosahedral rotations permute the 12 five-valent sites
