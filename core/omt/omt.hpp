@@ -35,6 +35,8 @@ struct OmtOptions {
   /// start spends most of its Newton iterations in the damped phase; here most of those run
   /// on the coarse levels, at a fraction of the cost. If the solve from that start does not
   /// converge, it is solved again from the plain start, so it answers wherever that does.
+  /// solve_surface_omt (the sphere) takes it wherever the start is 10x off with at least
+  /// 1,000 sites, without the first-step trial.
   bool multilevel = false;
   /// With `multilevel`: whether the first Newton step decides (above). Off, the
   /// coarse-to-fine start is taken wherever the start is 10x off: how the coarse levels are
