@@ -320,11 +320,11 @@ namespace {
 // OmtOptions::multilevel on a surface (the sphere's distances): the coarse-to-fine start of
 // multilevel.cpp with the surface's own cells. A quarter of the sites carries the masses of
 // the sites nearest each (the owner under zero heights, found by the greedy walk); its
-// solution's smoothed Legendre transform gives the fine heights, with eps = 2 pi / sqrt(n m)
-// (half a coarse cell's size times a site spacing on the unit sphere; bear x bear_bis took
-// 72 Newton iterations and 10.4 s at four times that, 47 and 6.2 s at this, and oblong x
-// retinal 78 and 3.6 s against 67 and 2.1 s; a quarter of it left oblong x retinal at 152).
-// Nothing where the coarse solve fails.
+// solution's smoothed Legendre transform gives the fine heights, with eps = 2 pi / sqrt(n m):
+// half a coarse cell's size times a site spacing on the unit sphere. Wider smoothing left
+// the fine starts further off (four times this: a third more Newton iterations on the real
+// pairs); a quarter of it stalled one pair (bench/RESULTS.md, session 21). Nothing where
+// the coarse solve fails.
 std::optional<Eigen::VectorXd> surface_coarse_to_fine(const SurfaceDensity& surface, const Points3& sites,
                                                       const Eigen::VectorXd& nu, const OmtOptions& opt,
                                                       SurfaceOmtResult& r) {
