@@ -44,8 +44,7 @@ std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, cons
   // iterations (0.05 and 0.08: 93 and 92 there, but more on the others; bench/RESULTS.md,
   // session 20).
   const double eps = 2 * std::numbers::pi / std::sqrt(static_cast<double>(n) * m);
-  const Eigen::VectorXd h = smoothed_dual(coarse, c.cells.centroid, c.h, c.cells.mass, sites, eps, 0.03);
-  return h;
+  return smoothed_dual(coarse, c.cells.centroid, c.h, c.cells.mass, sites, eps, 0.03);
 }
 
 }  // namespace detail

@@ -356,7 +356,7 @@ std::optional<Eigen::VectorXd> surface_coarse_to_fine(const SurfaceDensity& surf
   return detail::smoothed_dual(coarse, centroid, c.h, c.cells.mass, sites, eps, 0.03);
 }
 
-// The coarse-to-fine start, taken where it leaves no cell empty.
+// The coarse-to-fine start, taken where it leaves no cell empty (h and r.cells move to it).
 void surface_coarse_start(const SurfaceDensity& surface, const Points3& sites, const OmtOptions& opt,
                           Eigen::VectorXd& h, SurfaceOmtResult& r) {
   std::optional<Eigen::VectorXd> start = surface_coarse_to_fine(surface, sites, r.target, opt, r);
@@ -368,7 +368,6 @@ void surface_coarse_start(const SurfaceDensity& surface, const Points3& sites, c
   }
   h = std::move(*start);
   r.cells = std::move(c);
-  r.max_relative_error = ((r.cells.mass - r.target).array().abs() / r.target.array()).maxCoeff();
 }
 
 SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& nu_in,
@@ -389,7 +388,10 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
   auto relative_norm = [&](const Eigen::VectorXd& g) { return (g.array() / nu.array()).matrix().norm(); };
   r.cells = surface_power_cells(surface, sites, h);
   r.max_relative_error = max_relative(r.cells.mass);
-  if (opt.multilevel && n >= 1000 && r.max_relative_error > 10) surface_coarse_start(surface, sites, opt, h, r);
+  if (opt.multilevel && n >= 1000 && r.max_relative_error > 10) {
+    surface_coarse_start(surface, sites, opt, h, r);
+    r.max_relative_error = max_relative(r.cells.mass);
+  }
   // Kitagawa-Merigot-Thibert damping: every cell keeps at least eps0.
   const double eps0 = 0.5 * std::min(nu.minCoeff(), r.cells.mass.minCoeff());
   if (!(eps0 > 0))
