@@ -1067,4 +1067,33 @@ void write_mesh_file(const std::string& path, const TriMesh& mesh, const UV* uv,
   if (!out) invalid("cannot write '" + path + "' (disk full?)");
 }
 
+std::optional<UV> read_obj_uv(std::string_view text, int64_t vertices) {
+  std::vector<double> uv;
+  std::istringstream in{std::string(text)};
+  std::string line;
+  for (int64_t n = 1; std::getline(in, line); ++n) {
+    if (line.rfind("vt ", 0) == 0) {
+      std::istringstream l(line.substr(3));
+      double u = 0, v = 0;
+      if (!(l >> u >> v) || !std::isfinite(u) || !std::isfinite(v))
+        invalid("line " + std::to_string(n) + ": a texture coordinate needs two finite numbers");
+      uv.push_back(u);
+      uv.push_back(v);
+    } else if (line.rfind("f ", 0) == 0 && line.find('/') != std::string::npos) {
+      std::istringstream l(line.substr(2));
+      for (std::string corner; l >> corner;) {
+        const size_t slash = corner.find('/');
+        const size_t end = corner.find('/', slash + 1);
+        if (slash != std::string::npos && corner.substr(slash + 1, end - slash - 1) != corner.substr(0, slash))
+          invalid("line " + std::to_string(n) + ": texture coordinates are not one per vertex (corner " + corner + ")");
+      }
+    }
+  }
+  if (uv.empty()) return std::nullopt;
+  if (static_cast<int64_t>(uv.size() / 2) != vertices)
+    invalid(std::to_string(uv.size() / 2) + " texture coordinates for " + std::to_string(vertices) +
+            " vertices: they are not one per vertex");
+  return Eigen::Map<const UV>(uv.data(), static_cast<Eigen::Index>(uv.size() / 2), 2);
+}
+
 }  // namespace brenier::mesh

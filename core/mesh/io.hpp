@@ -44,6 +44,11 @@ PolygonSoup read_soup_file(const std::string& path, std::optional<Format> format
 /// Whole file into memory, with the size checked against limits.max_bytes.
 std::string read_file_bytes(const std::string& path, const ReadLimits& limits = {});
 
+/// The per-vertex texture coordinates of an OBJ file's text (`vt u v` lines, as write_mesh_string
+/// writes them): nullopt when it has none. Throws Error(kInvalidArgument) when they are not
+/// one per vertex (another count than `vertices`, or a face corner `a/b` with b != a).
+std::optional<UV> read_obj_uv(std::string_view text, int64_t vertices);
+
 /// Serializes a triangle mesh. `uv` (#V by 2), when given, is written as `vt u v` per vertex
 /// for OBJ (faces as `f a/a b/b c/c`) and as u, v vertex properties for PLY; OFF and
 /// FreeSurfer ignore it. Coordinates are written with 17 significant digits, so an ascii

@@ -69,6 +69,7 @@ MapQuality measure(const mesh::TriMesh& surface, const mesh::Vertices& image, Ta
   angles.reserve(static_cast<size_t>(nf) * 3);
   Eigen::VectorXd a_img(nf);
   q.qc_ratio.resize(nf);
+  q.angle_distortion.resize(nf);
   for (int f = 0; f < nf; ++f) {
     Vec3 p[3], x[3];
     for (int k = 0; k < 3; ++k) {
@@ -82,9 +83,11 @@ MapQuality measure(const mesh::TriMesh& surface, const mesh::Vertices& image, Ta
       ++q.flipped_faces;
       if (q.flipped.size() < 1000) q.flipped.push_back(f);
     }
+    q.angle_distortion[f] = 0;
     for (int k = 0; k < 3; ++k) {
       double d = angle(x[k], x[(k + 1) % 3], x[(k + 2) % 3]) - angle(p[k], p[(k + 1) % 3], p[(k + 2) % 3]);
       angles.push_back(std::abs(d) * 180.0 / std::numbers::pi);
+      q.angle_distortion[f] = std::max(q.angle_distortion[f], angles.back());
     }
     if (flipped || !(a_img[f] > 0)) {
       q.qc_ratio[f] = std::numeric_limits<double>::infinity();

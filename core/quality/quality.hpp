@@ -25,6 +25,7 @@ struct MapQuality {
   Stats area_distortion_log_abs;       // |log((A'/sum A') / (A/sum A))| per face
   Stats quasi_conformal;               // sigma_max / sigma_min of each face's affine map
   Eigen::VectorXd area_distortion_log; // #F signed log area ratios
+  Eigen::VectorXd angle_distortion;    // #F: the largest of the face's three corners' errors, degrees
   Eigen::VectorXd qc_ratio;            // #F (infinity for flipped or degenerate faces)
   /// Sphere maps: sphere_degree of the image (1 for the plane). No flipped face does not
   /// make a bijection by itself: a map can wrap around the sphere several times with every

@@ -79,6 +79,14 @@ TEST(Io, ObjWritesVtPerVertexAndSlashedFaces) {
   EXPECT_NE(s.find("f 1/1 2/2 5/5\n"), std::string::npos) << s.substr(0, 400);
   // And it reads back with the same faces.
   EXPECT_EQ(soup_to_mesh(read_soup(s, Format::kObj)).F, m.F);
+  // And its vt read back exactly (what `render` draws a disk map from).
+  const std::optional<UV> back = read_obj_uv(s, m.V.rows());
+  ASSERT_TRUE(back.has_value());
+  EXPECT_EQ(*back, uv);
+  EXPECT_FALSE(read_obj_uv(write_mesh_string(m, Format::kObj), m.V.rows()).has_value());
+  EXPECT_ERROR(read_obj_uv(s, m.V.rows() + 1), ErrorCode::kInvalidArgument, "not one per vertex");
+  EXPECT_ERROR(read_obj_uv("v 0 0 0\nvt 0 0\nf 1/2 1/1 1/1\n", 1), ErrorCode::kInvalidArgument, "corner 1/2");
+  EXPECT_ERROR(read_obj_uv("vt 0 nan\n", 1), ErrorCode::kInvalidArgument, "two finite numbers");
 }
 
 TEST(Io, FileRoundTripThroughDisk) {

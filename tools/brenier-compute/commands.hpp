@@ -41,6 +41,13 @@ void add_map(CLI::App& app, Action& action);
 void add_omt_bench(CLI::App& app, Action& action);
 /// distance, matrix, merge, mds and knn.
 void add_distance(CLI::App& app, Action& action);
+/// render: pictures of map and matrix results.
+void add_render(CLI::App& app, Action& action);
+
+/// The labels of `names` from a CSV of "name,label" lines (a first line "name,label" is a
+/// header). Throws kNotFound for an unreadable file, kInvalidArgument for a bad line or a
+/// name without a label.
+std::vector<std::string> read_labels(const std::string& path, const std::vector<std::string>& names);
 
 using jobs::problems_json;
 using jobs::topology_json;

@@ -244,29 +244,6 @@ int run_mds(const std::string& input, const std::string& output, int dims, bool 
   return kExitOk;
 }
 
-// "name,label" per line; a first line "name,label" is a header.
-std::vector<std::string> read_labels(const std::string& path, const std::vector<std::string>& names) {
-  std::ifstream in(path);
-  if (!in) fail(ErrorCode::kNotFound, "cannot read the labels file " + path);
-  std::map<std::string, std::string> label;
-  std::string line;
-  for (int n = 1; std::getline(in, line); ++n) {
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-    if (line.empty() || (n == 1 && line == "name,label")) continue;
-    const size_t comma = line.rfind(',');
-    if (comma == std::string::npos || comma == 0 || comma + 1 == line.size())
-      invalid(path + ":" + std::to_string(n) + ": expected name,label");
-    label[line.substr(0, comma)] = line.substr(comma + 1);
-  }
-  std::vector<std::string> out;
-  for (const std::string& s : names) {
-    auto it = label.find(s);
-    if (it == label.end()) invalid(path + " has no label for " + s);
-    out.push_back(it->second);
-  }
-  return out;
-}
-
 int run_knn(const std::string& input, const std::string& labels_path, int k, int folds, bool json) {
   std::vector<std::string> names;
   Eigen::MatrixXd d;
@@ -297,6 +274,28 @@ int run_knn(const std::string& input, const std::string& labels_path, int k, int
 }
 
 }  // namespace
+
+std::vector<std::string> read_labels(const std::string& path, const std::vector<std::string>& names) {
+  std::ifstream in(path);
+  if (!in) fail(ErrorCode::kNotFound, "cannot read the labels file " + path);
+  std::map<std::string, std::string> label;
+  std::string line;
+  for (int n = 1; std::getline(in, line); ++n) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty() || (n == 1 && line == "name,label")) continue;
+    const size_t comma = line.rfind(',');
+    if (comma == std::string::npos || comma == 0 || comma + 1 == line.size())
+      invalid(path + ":" + std::to_string(n) + ": expected name,label");
+    label[line.substr(0, comma)] = line.substr(comma + 1);
+  }
+  std::vector<std::string> out;
+  for (const std::string& s : names) {
+    auto it = label.find(s);
+    if (it == label.end()) invalid(path + " has no label for " + s);
+    out.push_back(it->second);
+  }
+  return out;
+}
 
 void add_distance(CLI::App& app, Action& action) {
   {

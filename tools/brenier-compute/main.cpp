@@ -49,6 +49,7 @@ int main(int argc, char** argv) {
   brenier::tools::add_map(app, action);
   brenier::tools::add_omt_bench(app, action);
   brenier::tools::add_distance(app, action);
+  brenier::tools::add_render(app, action);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {
