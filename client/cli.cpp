@@ -357,7 +357,7 @@ void add_job_commands(CLI::App& app, const Global& g, Action& action) {
   auto* result = app.add_subcommand("result", "download a finished job's artifact");
   result->add_option("id", a->id, "job id")->required();
   result->add_option("-o,--output", a->output, "file to write")->required();
-  result->add_option("--artifact", a->artifact, "mesh, report, matrix, matrix.npy (default: the main one)");
+  result->add_option("--artifact", a->artifact, "mesh, report, matrix, matrix.npy, preview.png, preview.svg (default: the main one)");
   result->callback([&g, &action, a] {
     action = [&g, a](Client& c) { return download_result(c, g, a->id, a->output, a->artifact); };
   });

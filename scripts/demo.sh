@@ -52,6 +52,11 @@ cat "$OUT/D-service.csv"
 echo
 echo "== brenier jobs"
 "$B" jobs
+echo
+echo "== brenier result JOB --artifact preview.png: the pictures every map and matrix job keeps"
+MAP_JOB="$("$B" --json map "$M/lion-head.off" --method area-preserving --no-wait | sed -n 's/.*"id": *"\([0-9a-f]*\)".*/\1/p')"
+"$B" watch "$MAP_JOB" >/dev/null
+"$B" result "$MAP_JOB" --artifact preview.png -o "$OUT/lion-head-area-service.png"
 kill -TERM $SERVER_PID
 wait $SERVER_PID
 trap - EXIT
@@ -80,6 +85,11 @@ echo
 echo "== brenier-compute map data/meshes/armadillo.off --domain sphere -o out/armadillo-sphere.obj"
 "$BC" map "$M/armadillo.off" --domain sphere -o "$OUT/armadillo-sphere.obj"
 echo
+echo "== pictures: brenier-compute map --picture and render (PNG or SVG)"
+"$BC" map "$M/mannequin-devil.off" --method area-preserving --picture "$OUT/mannequin-devil-area.png"
+"$BC" render "$OUT/armadillo-sphere.obj" --surface "$M/armadillo.off" -o "$OUT/armadillo-sphere.png"
+"$BC" render "$OUT/lion-head-disk.obj" "$OUT/lion-head-area.obj" -o "$OUT/lion-head.svg"
+echo
 echo "== brenier-compute map data/meshes/bunny00.off --domain disk --cut-hole --json (a closed surface opened and flattened)"
 "$BC" map "$M/bunny00.off" --domain disk --cut-hole --json
 echo
@@ -91,3 +101,7 @@ echo "== brenier-compute matrix (six disk meshes, OMT-map distance) -o out/D.csv
   --method omt-linear --cache "$OUT/shape-cache"
 cat "$OUT/D.csv"
 "$BC" mds "$OUT/D.csv" -o "$OUT/mds.csv"
+"$BC" render "$OUT/D.csv" -o "$OUT/D.png"
+echo
+echo "== pictures written:"
+ls -1 "$OUT"/*.png "$OUT"/*.svg

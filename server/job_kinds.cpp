@@ -11,9 +11,12 @@
 #include <map>
 #include <set>
 
+#include <spdlog/spdlog.h>
+
 #include "common/error.hpp"
 #include "common/parallel.hpp"
 #include "jobs/matrix_work.hpp"
+#include "render/render.hpp"
 #include "spec.hpp"
 
 namespace brenier::server {
@@ -88,6 +91,19 @@ pb::Artifact artifact(Store& store, const std::string& name, const std::string& 
   return a;
 }
 
+// The pictures of a result (issue 24): preview.png and preview.svg, after its other artifacts.
+// A picture that cannot be drawn costs only the pictures (logged), never the result.
+void add_previews(Store& store, pb::JobResult& out, const std::string& job,
+                  const std::function<render::Picture(render::Format)>& draw) {
+  try {
+    const std::string png = draw(render::Format::kPng).bytes, svg = draw(render::Format::kSvg).bytes;
+    *out.add_artifacts() = artifact(store, "preview.png", "image/png", "preview.png", png);
+    *out.add_artifacts() = artifact(store, "preview.svg", "image/svg+xml", "preview.svg", svg);
+  } catch (const Error& e) {
+    spdlog::warn("job {}: no preview pictures: {}", job, e.what());
+  }
+}
+
 std::string read_whole(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) fail(ErrorCode::kInternal, "cannot read " + path);
@@ -154,6 +170,11 @@ pb::JobResult run_map_job(JobContext& c, const pb::MapSpec& s) {
   *out.add_artifacts() = artifact(c.store, "mesh", format == mesh::Format::kObj ? "model/obj" : "application/octet-stream",
                                   stem + "." + ext, jobs::map_mesh_bytes(m, format));
   *out.add_artifacts() = artifact(c.store, "report", "application/json", stem + ".json", m.report.dump(2));
+  const std::vector<render::MapFigure> rows = render::map_figures(m, rec.name());
+  add_previews(c.store, out, c.live.job.id(), [&](render::Format f) {
+    return render::map_picture(rows, f, render::map_picture_width(),
+                               render::map_picture_height(static_cast<int>(rows.size())));
+  });
   out.set_converged(true);
   return out;
 }
@@ -326,6 +347,8 @@ pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
                            {"not_converged", failed},
                            {"seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
   *out.add_artifacts() = artifact(c.store, "report", "application/json", "matrix.json", report.dump(2));
+  render::MatrixFigure figure{d, nm, {}};
+  add_previews(c.store, out, c.live.job.id(), [&](render::Format f) { return render::matrix_picture(figure, f, 1400, 760); });
   out.set_converged(failed.empty());
   std::error_code ec;
   fs::remove_all(work, ec);

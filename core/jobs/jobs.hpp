@@ -42,6 +42,9 @@ struct MapOutcome {
   mesh::TriMesh surface;     // the mesh that was mapped (the input's order; a cut star removed)
   mesh::Vertices positions;  // #V by 3: disk with z = 0, or on the unit sphere
   bool disk = true;
+  /// The conformal map an area-preserving map started from (#V by 3, as `positions`); empty
+  /// for a conformal map.
+  mesh::Vertices conformal;
   /// mesh, cut_hole_vertex, domain, method, seconds{map}, conformal{...}, omt{...},
   /// quality{...}, problems (the DESIGN.md contract; the caller adds seconds.read/total).
   nlohmann::json report;

@@ -235,6 +235,7 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
     map = ap->conformal;
   }
   out.positions = ap ? ap->positions : map.positions;
+  if (ap) out.conformal = map.positions;
   const double t_map = seconds_since(t1);
   if (!map.converged) {
     char buf[200];

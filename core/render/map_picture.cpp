@@ -49,18 +49,30 @@ Vec3 face_normal(const mesh::Vertices& V, const mesh::Faces& F, int f) {
   return (V.row(F(f, 1)) - V.row(F(f, 0))).cross(V.row(F(f, 2)) - V.row(F(f, 0))).transpose();
 }
 
-// View::automatic: along the axis of least spread, from the side most of the area faces.
+// View::automatic: facing the surface's mean normal where it has one (an open surface such
+// as a face or a height field: at least a fifth of its area faces one way), otherwise along
+// its axis of least spread from the side most of its area faces; the axis of most spread
+// across the picture.
 Camera surface_camera(const mesh::TriMesh& s, const View& view, const Rect& r) {
   const Vec3 centre = s.V.colwise().mean().transpose();
   Camera c;
   if (view.automatic) {
     const auto X = s.V.rowwise() - centre.transpose();
     Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(X.transpose() * X);
+    Vec3 mean_normal = Vec3::Zero();
+    double area = 0;
+    for (int f = 0; f < s.num_faces(); ++f) {
+      mean_normal += face_normal(s.V, s.F, f);
+      area += face_normal(s.V, s.F, f).norm();
+    }
     Vec3 toward = eig.eigenvectors().col(0);
-    double facing = 0;
-    for (int f = 0; f < s.num_faces(); ++f) facing += face_normal(s.V, s.F, f).dot(toward);
-    if (facing < 0) toward = -toward;
-    c = oriented(toward, toward.cross(eig.eigenvectors().col(2)));
+    if (mean_normal.norm() > 0.2 * area)
+      toward = mean_normal.normalized();
+    else if (mean_normal.dot(toward) < 0)
+      toward = -toward;
+    Vec3 across = eig.eigenvectors().col(2) - eig.eigenvectors().col(2).dot(toward) * toward;
+    if (across.norm() < 1e-6) across = eig.eigenvectors().col(1);
+    c = oriented(toward, toward.cross(across.normalized()));
   } else {
     const double az = view.azimuth_deg * std::numbers::pi / 180, el = view.elevation_deg * std::numbers::pi / 180;
     c = oriented(Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)), Vec3::UnitZ());
@@ -118,6 +130,11 @@ bool place_texture(cairo_pattern_t* pattern, const Vec2 (&s)[3], const Vec2 (&uv
   if (std::abs(S.determinant()) < 1e-9) return false;
   const Eigen::Matrix2d A = T * S.inverse();
   const Vec2 b = kChecks * uv[0] - A * s[0];
+  // Flat instead where a check would be under a pixel across (the texture would alias) or
+  // the placement is near singular: Cairo leaves its context in error (out of memory) for
+  // the extreme placements of an area-preserving map's slivers (mannequin-devil).
+  const double det = std::abs(A.determinant());
+  if (!A.allFinite() || !b.allFinite() || A.norm() > 1 || !(det > 1e-10)) return false;
   cairo_matrix_t m;
   cairo_matrix_init(&m, A(0, 0), A(1, 0), A(0, 1), A(1, 1), b.x(), b.y());
   cairo_pattern_set_matrix(pattern, &m);
@@ -313,6 +330,22 @@ void check_map(const MapFigure& m, size_t k) {
 }
 
 }  // namespace
+
+std::vector<MapFigure> map_figures(const jobs::MapOutcome& map, const std::string& name) {
+  const std::string domain = map.disk ? "disk" : "sphere";
+  std::vector<MapFigure> out;
+  auto add = [&](const mesh::Vertices& image, const std::string& method) {
+    MapFigure f;
+    f.title = name + " on the " + domain + ", " + method;
+    f.surface = map.surface;
+    f.image = image;
+    f.disk = map.disk;
+    out.push_back(std::move(f));
+  };
+  if (map.conformal.rows() > 0) add(map.conformal, "conformal");
+  add(map.positions, map.conformal.rows() > 0 ? "area-preserving" : "conformal");
+  return out;
+}
 
 Picture map_picture(const std::vector<MapFigure>& maps, Format format, int width, int height, const View& view) {
   detail::check_picture_size(width, height);

@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "jobs/jobs.hpp"
 #include "mesh/mesh.hpp"
 
 namespace brenier::render {
@@ -90,6 +91,13 @@ struct MapFigure {
 /// quality::measure), and the histograms of both. Throws Error(kInvalidArgument) for sizes
 /// out of 64..16384 pixels, no maps, or an image whose rows do not match the surface.
 Picture map_picture(const std::vector<MapFigure>& maps, Format format, int width, int height, const View& view = {});
+
+/// The rows of a computed map: the map itself, and for an area-preserving map first the
+/// conformal map it started from (titled with `name`, the domain and the method).
+std::vector<MapFigure> map_figures(const jobs::MapOutcome& map, const std::string& name);
+/// The default size of a picture of `rows` maps.
+inline int map_picture_width() { return 1600; }
+inline int map_picture_height(int rows) { return 330 * rows; }
 
 /// A distance matrix with its shapes' names and, optionally, labels (empty, or one per
 /// shape).

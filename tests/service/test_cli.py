@@ -3,6 +3,7 @@
 Usage: test_cli.py BRENIERD BRENIER FIXTURES WORK_DIR"""
 import json
 import os
+import struct
 import subprocess
 import sys
 import time
@@ -42,12 +43,24 @@ try:
     check(rc == 0 and "SUCCEEDED" in out, f"watch: {rc} {out!r} {err!r}")
     rc, out, err = run("result", job, "-o", os.path.join(work, "r.obj"))
     check(rc == 0 and os.path.getsize(os.path.join(work, "r.obj")) > 0, f"result -o: {rc} {err!r}")
+    # The pictures of every map job (issue 24): a PNG of one row of 1600x330, and its SVG.
+    png = os.path.join(work, "preview.png")
+    rc, out, err = run("result", job, "--artifact", "preview.png", "-o", png)
+    head = open(png, "rb").read(24) if rc == 0 else b""
+    check(head[:8] == b"\x89PNG\r\n\x1a\n" and struct.unpack(">II", head[16:24]) == (1600, 330),
+          f"the map's preview.png: {rc} {err!r} {head[16:24]!r}")
+    rc, out, err = run("result", job, "--artifact", "preview.svg", "-o", os.path.join(work, "preview.svg"))
+    check(rc == 0 and open(os.path.join(work, "preview.svg")).read(5) == "<?xml", f"the map's preview.svg: {rc} {err!r}")
     rc, out, err = run("--json", "distance", a, b)
     d = json.loads(out)["distance"] if rc == 0 else -1
     check(rc == 0 and d > 0, f"distance: {rc} {d} {err!r}")
     rc, out, err = run("matrix", a, b, c, "-o", os.path.join(work, "D.csv"), "--method", "omt-linear")
     rows = open(os.path.join(work, "D.csv")).read().splitlines() if rc == 0 else []
     check(rc == 0 and len(rows) == 4 and rows[0] == "name,a.off,b.off,c.off", f"matrix CSV: {rc} {rows[:1]} {err!r}")
+    rc, out, err = run("--json", "jobs")
+    matrices = [j for j in json.loads(out) if j["kind"] == "matrix" and j["state"] == "SUCCEEDED"] if rc == 0 else []
+    names = [a["name"] for a in matrices[0]["artifacts"]] if matrices else []
+    check("preview.png" in names and "preview.svg" in names, f"a matrix job's artifacts: {names}")
     rc, out, err = run("matrix", a, b, "-o", os.path.join(work, "D.npy"))
     check(rc == 0 and open(os.path.join(work, "D.npy"), "rb").read(6) == b"\x93NUMPY", f"matrix NPY: {rc} {err!r}")
     rc, out, err = run("--json", "meshes")

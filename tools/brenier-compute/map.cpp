@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <optional>
 #include <cstdio>
@@ -12,6 +13,7 @@
 #include "commands.hpp"
 #include "common/error.hpp"
 #include "jobs/jobs.hpp"
+#include "render/render.hpp"
 #include "request_flags.hpp"
 
 namespace brenier::tools {
@@ -20,12 +22,23 @@ namespace {
 struct MapOptions {
   MeshInputOptions input;
   options::MapFlags flags;
-  std::string output;
+  std::string output, picture;
   bool json = false;
 };
 
 double seconds_since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// The map's picture (render::map_picture; an area-preserving map beside its conformal start).
+void write_picture(const jobs::MapOutcome& m, const std::string& input, const std::string& path) {
+  const std::vector<render::MapFigure> rows = render::map_figures(m, std::filesystem::path(input).filename().string());
+  const render::Picture p =
+      render::map_picture(rows, render::format_of(path), render::map_picture_width(),
+                          render::map_picture_height(static_cast<int>(rows.size())));
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(p.bytes.data(), static_cast<std::streamsize>(p.bytes.size()));
+  if (!out.flush()) invalid("cannot write '" + path + "'");
 }
 
 int run_map(const MapOptions& o) {
@@ -35,13 +48,16 @@ int run_map(const MapOptions& o) {
   mesh::require_valid(cm, o.input.path);
   const double t_read = seconds_since(t0);
 
+  if (!o.picture.empty()) render::format_of(o.picture);  // a bad name fails before the work
   jobs::MapOutcome m = jobs::run_map(cm, o.input.path, r);
   if (!o.output.empty()) jobs::write_map_file(m, o.output);
+  if (!o.picture.empty()) write_picture(m, o.input.path, o.picture);
 
   nlohmann::json& j = m.report;
   j["seconds"]["read"] = t_read;
   j["seconds"]["total"] = seconds_since(t0);
   if (!o.output.empty()) j["output"] = o.output;
+  if (!o.picture.empty()) j["picture"] = o.picture;
   if (o.json) {
     std::cout << j.dump(2) << std::endl;
     return kExitOk;
@@ -60,6 +76,7 @@ int run_map(const MapOptions& o) {
               q["angle_distortion_deg"]["p95"].get<double>(), q["angle_distortion_deg"]["max"].get<double>(),
               q["area_distortion_log"]["mean_abs"].get<double>(), q["area_distortion_log"]["max_abs"].get<double>());
   if (!o.output.empty()) std::printf("wrote %s\n", o.output.c_str());
+  if (!o.picture.empty()) std::printf("wrote %s\n", o.picture.c_str());
   return kExitOk;
 }
 
@@ -71,6 +88,7 @@ void add_map(CLI::App& app, Action& action) {
   o->input.add_to(cmd);
   o->flags.add_to(cmd);
   cmd->add_option("-o,--output", o->output, "write the mapped mesh (.obj with vt, .ply, .off)");
+  cmd->add_option("--picture", o->picture, "draw the map (.png or .svg; see render)");
   cmd->add_flag("--json", o->json, "print one JSON object");
   cmd->callback([o, &action] { action = [o] { return run_map(*o); }; });
 }

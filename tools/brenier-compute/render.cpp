@@ -3,6 +3,7 @@
 // on the unit sphere; one row each, so a conformal map beside an area-preserving one is two
 // files) or a distance matrix (.csv or .json, with --labels).
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <memory>
@@ -47,7 +48,7 @@ mesh::TriMesh triangles(const mesh::PolygonSoup& s, const std::string& path) {
 // renumber vertices and so detach the image from its surface).
 render::MapFigure read_map(const std::string& path, const std::string& surface_path) {
   render::MapFigure m;
-  m.title = path;
+  m.title = std::filesystem::path(path).filename().string();
   const std::string bytes = mesh::read_file_bytes(path);
   const mesh::Format format = mesh::detect_format(path, std::string_view(bytes).substr(0, 64));
   const mesh::TriMesh read = triangles(mesh::read_soup(bytes, format), path);
