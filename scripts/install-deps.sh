@@ -25,6 +25,11 @@ BUILD_PACKAGES=(
 )
 # What the tests, benchmarks and the demo need beside.
 TEST_PACKAGES=(
+  # What the programs read at run time beside their libraries (the image's runtime stage
+  # installs them too): the pictures' font, and three.js inlined into the HTML reports.
+  fonts-dejavu-core libjs-three
+  # The HTML report's test in a real browser: headless Chromium driven by Selenium.
+  chromium chromium-driver python3-selenium
   # The PostgreSQL the tests start (initdb, pg_ctl).
   postgresql-15
   # The Slurm executor's tests start a real Slurm (munged, slurmctld, slurmd on loopback).

@@ -17,6 +17,7 @@
 #include "common/parallel.hpp"
 #include "jobs/matrix_work.hpp"
 #include "render/render.hpp"
+#include "render/report.hpp"
 #include "spec.hpp"
 
 namespace brenier::server {
@@ -91,16 +92,14 @@ pb::Artifact artifact(Store& store, const std::string& name, const std::string& 
   return a;
 }
 
-// The pictures of a result (issue 24): preview.png and preview.svg, after its other artifacts.
-// A picture that cannot be drawn costs only the pictures (logged), never the result.
-void add_previews(Store& store, pb::JobResult& out, const std::string& job,
-                  const std::function<render::Picture(render::Format)>& draw) {
+// The pictures and the HTML report of a result (issue 24), after its other artifacts: one
+// that cannot be drawn costs only itself (logged), never the result.
+void add_drawn(JobContext& c, pb::JobResult& out, const std::string& name, const std::string& media,
+               const std::function<std::string()>& draw) {
   try {
-    const std::string png = draw(render::Format::kPng).bytes, svg = draw(render::Format::kSvg).bytes;
-    *out.add_artifacts() = artifact(store, "preview.png", "image/png", "preview.png", png);
-    *out.add_artifacts() = artifact(store, "preview.svg", "image/svg+xml", "preview.svg", svg);
+    *out.add_artifacts() = artifact(c.store, name, media, name, draw());
   } catch (const Error& e) {
-    spdlog::warn("job {}: no preview pictures: {}", job, e.what());
+    spdlog::warn("job {}: no {}: {}", c.live.job.id(), name, e.what());
   }
 }
 
@@ -171,10 +170,14 @@ pb::JobResult run_map_job(JobContext& c, const pb::MapSpec& s) {
                                   stem + "." + ext, jobs::map_mesh_bytes(m, format));
   *out.add_artifacts() = artifact(c.store, "report", "application/json", stem + ".json", m.report.dump(2));
   const std::vector<render::MapFigure> rows = render::map_figures(m, rec.name());
-  add_previews(c.store, out, c.live.job.id(), [&](render::Format f) {
-    return render::map_picture(rows, f, render::map_picture_width(),
-                               render::map_picture_height(static_cast<int>(rows.size())));
-  });
+  for (const render::Format f : {render::Format::kPng, render::Format::kSvg})
+    add_drawn(c, out, f == render::Format::kPng ? "preview.png" : "preview.svg",
+              f == render::Format::kPng ? "image/png" : "image/svg+xml", [&] {
+                return render::map_picture(rows, f, render::map_picture_width(),
+                                           render::map_picture_height(static_cast<int>(rows.size())))
+                    .bytes;
+              });
+  add_drawn(c, out, "report.html", "text/html", [&] { return render::map_report_html(m, rec.name()); });
   out.set_converged(true);
   return out;
 }
@@ -193,6 +196,9 @@ pb::JobResult run_distance_job(JobContext& c, const pb::DistanceSpec& s) {
   d.report["b"] = s.b();
   pb::JobResult out;
   *out.add_artifacts() = artifact(c.store, "report", "application/json", "distance.json", d.report.dump(2));
+  add_drawn(c, out, "report.html", "text/html", [&] {
+    return render::figures_report_html("brenier: distance of " + ra.name() + " and " + rb.name(), d.report);
+  });
   out.set_distance(d.result.distance);
   out.set_converged(true);
   return out;
@@ -347,8 +353,12 @@ pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
                            {"not_converged", failed},
                            {"seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
   *out.add_artifacts() = artifact(c.store, "report", "application/json", "matrix.json", report.dump(2));
-  render::MatrixFigure figure{d, nm, {}};
-  add_previews(c.store, out, c.live.job.id(), [&](render::Format f) { return render::matrix_picture(figure, f, 1400, 760); });
+  const render::MatrixFigure figure{d, nm, {}};
+  add_drawn(c, out, "preview.png", "image/png",
+            [&] { return render::matrix_picture(figure, render::Format::kPng, 1400, 760).bytes; });
+  add_drawn(c, out, "preview.svg", "image/svg+xml",
+            [&] { return render::matrix_picture(figure, render::Format::kSvg, 1400, 760).bytes; });
+  add_drawn(c, out, "report.html", "text/html", [&] { return render::matrix_report_html(figure, report); });
   out.set_converged(failed.empty());
   std::error_code ec;
   fs::remove_all(work, ec);

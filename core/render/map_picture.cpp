@@ -53,7 +53,7 @@ Vec3 face_normal(const mesh::Vertices& V, const mesh::Faces& F, int f) {
 // as a face or a height field: at least a fifth of its area faces one way), otherwise along
 // its axis of least spread from the side most of its area faces; the axis of most spread
 // across the picture.
-Camera surface_camera(const mesh::TriMesh& s, const View& view, const Rect& r) {
+Camera surface_orientation(const mesh::TriMesh& s, const View& view) {
   const Vec3 centre = s.V.colwise().mean().transpose();
   Camera c;
   if (view.automatic) {
@@ -77,6 +77,12 @@ Camera surface_camera(const mesh::TriMesh& s, const View& view, const Rect& r) {
     const double az = view.azimuth_deg * std::numbers::pi / 180, el = view.elevation_deg * std::numbers::pi / 180;
     c = oriented(Vec3(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el)), Vec3::UnitZ());
   }
+  return c;
+}
+
+Camera surface_camera(const mesh::TriMesh& s, const View& view, const Rect& r) {
+  const Vec3 centre = s.V.colwise().mean().transpose();
+  Camera c = surface_orientation(s, view);
   c.centre = centre;
   double ex = 1e-12, ey = 1e-12;
   for (Eigen::Index i = 0; i < s.V.rows(); ++i) {
@@ -330,6 +336,11 @@ void check_map(const MapFigure& m, size_t k) {
 }
 
 }  // namespace
+
+SurfaceView surface_view(const mesh::TriMesh& surface, const View& view) {
+  const Camera c = surface_orientation(surface, view);
+  return {c.toward, c.up};
+}
 
 std::vector<MapFigure> map_figures(const jobs::MapOutcome& map, const std::string& name) {
   const std::string domain = map.disk ? "disk" : "sphere";

@@ -77,6 +77,12 @@ struct View {
 /// "auto" or "AZ,EL" (degrees); throws Error(kInvalidArgument) for anything else.
 View parse_view(const std::string& text);
 
+/// The 3-D panel's direction towards the viewer and its up direction for `view`.
+struct SurfaceView {
+  Eigen::Vector3d toward, up;
+};
+SurfaceView surface_view(const mesh::TriMesh& surface, const View& view);
+
 /// One map of a surface: its vertices in 3-D (surface.V may be empty: no 3-D panel) and
 /// their images (#V by 3: z = 0 on the disk, or on the unit sphere).
 struct MapFigure {

@@ -51,6 +51,10 @@ try:
           f"the map's preview.png: {rc} {err!r} {head[16:24]!r}")
     rc, out, err = run("result", job, "--artifact", "preview.svg", "-o", os.path.join(work, "preview.svg"))
     check(rc == 0 and open(os.path.join(work, "preview.svg")).read(5) == "<?xml", f"the map's preview.svg: {rc} {err!r}")
+    rc, out, err = run("result", job, "--artifact", "report.html", "-o", os.path.join(work, "report.html"))
+    page = open(os.path.join(work, "report.html"), encoding="utf-8").read() if rc == 0 else ""
+    check(page.startswith("<!DOCTYPE html>") and 'id="mesh-data"' in page and "OrbitControls" in page,
+          f"the map's report.html, with its 3-D view inlined: {rc} {err!r}")
     rc, out, err = run("--json", "distance", a, b)
     d = json.loads(out)["distance"] if rc == 0 else -1
     check(rc == 0 and d > 0, f"distance: {rc} {d} {err!r}")
@@ -60,7 +64,7 @@ try:
     rc, out, err = run("--json", "jobs")
     matrices = [j for j in json.loads(out) if j["kind"] == "matrix" and j["state"] == "SUCCEEDED"] if rc == 0 else []
     names = [a["name"] for a in matrices[0]["artifacts"]] if matrices else []
-    check("preview.png" in names and "preview.svg" in names, f"a matrix job's artifacts: {names}")
+    check({"preview.png", "preview.svg", "report.html"} <= set(names), f"a matrix job's artifacts: {names}")
     rc, out, err = run("matrix", a, b, "-o", os.path.join(work, "D.npy"))
     check(rc == 0 and open(os.path.join(work, "D.npy"), "rb").read(6) == b"\x93NUMPY", f"matrix NPY: {rc} {err!r}")
     rc, out, err = run("--json", "meshes")

@@ -14,6 +14,7 @@
 #include "common/error.hpp"
 #include "jobs/jobs.hpp"
 #include "render/render.hpp"
+#include "render/report.hpp"
 #include "request_flags.hpp"
 
 namespace brenier::tools {
@@ -22,7 +23,7 @@ namespace {
 struct MapOptions {
   MeshInputOptions input;
   options::MapFlags flags;
-  std::string output, picture;
+  std::string output, picture, report_html;
   bool json = false;
 };
 
@@ -52,12 +53,18 @@ int run_map(const MapOptions& o) {
   jobs::MapOutcome m = jobs::run_map(cm, o.input.path, r);
   if (!o.output.empty()) jobs::write_map_file(m, o.output);
   if (!o.picture.empty()) write_picture(m, o.input.path, o.picture);
+  if (!o.report_html.empty()) {
+    std::ofstream out(o.report_html, std::ios::binary | std::ios::trunc);
+    out << render::map_report_html(m, std::filesystem::path(o.input.path).filename().string());
+    if (!out.flush()) invalid("cannot write '" + o.report_html + "'");
+  }
 
   nlohmann::json& j = m.report;
   j["seconds"]["read"] = t_read;
   j["seconds"]["total"] = seconds_since(t0);
   if (!o.output.empty()) j["output"] = o.output;
   if (!o.picture.empty()) j["picture"] = o.picture;
+  if (!o.report_html.empty()) j["report_html"] = o.report_html;
   if (o.json) {
     std::cout << j.dump(2) << std::endl;
     return kExitOk;
@@ -77,6 +84,7 @@ int run_map(const MapOptions& o) {
               q["area_distortion_log"]["mean_abs"].get<double>(), q["area_distortion_log"]["max_abs"].get<double>());
   if (!o.output.empty()) std::printf("wrote %s\n", o.output.c_str());
   if (!o.picture.empty()) std::printf("wrote %s\n", o.picture.c_str());
+  if (!o.report_html.empty()) std::printf("wrote %s\n", o.report_html.c_str());
   return kExitOk;
 }
 
@@ -89,6 +97,7 @@ void add_map(CLI::App& app, Action& action) {
   o->flags.add_to(cmd);
   cmd->add_option("-o,--output", o->output, "write the mapped mesh (.obj with vt, .ply, .off)");
   cmd->add_option("--picture", o->picture, "draw the map (.png or .svg; see render)");
+  cmd->add_option("--report-html", o->report_html, "write a self-contained HTML report (pictures, figures, 3-D view)");
   cmd->add_flag("--json", o->json, "print one JSON object");
   cmd->callback([o, &action] { action = [o] { return run_map(*o); }; });
 }
