@@ -57,6 +57,7 @@ echo "== brenier result JOB --artifact preview.png: the pictures every map and m
 MAP_JOB="$("$B" --json map "$M/lion-head.off" --method area-preserving --no-wait | sed -n 's/.*"id": *"\([0-9a-f]*\)".*/\1/p')"
 "$B" watch "$MAP_JOB" >/dev/null
 "$B" result "$MAP_JOB" --artifact preview.png -o "$OUT/lion-head-area-service.png"
+"$B" result "$MAP_JOB" --artifact report.html -o "$OUT/lion-head-area-service.html"
 kill -TERM $SERVER_PID
 wait $SERVER_PID
 trap - EXIT
@@ -86,7 +87,8 @@ echo "== brenier-compute map data/meshes/armadillo.off --domain sphere -o out/ar
 "$BC" map "$M/armadillo.off" --domain sphere -o "$OUT/armadillo-sphere.obj"
 echo
 echo "== pictures: brenier-compute map --picture and render (PNG or SVG)"
-"$BC" map "$M/mannequin-devil.off" --method area-preserving --picture "$OUT/mannequin-devil-area.png"
+"$BC" map "$M/mannequin-devil.off" --method area-preserving --picture "$OUT/mannequin-devil-area.png" \
+  --report-html "$OUT/mannequin-devil-area.html"
 "$BC" render "$OUT/armadillo-sphere.obj" --surface "$M/armadillo.off" -o "$OUT/armadillo-sphere.png"
 "$BC" render "$OUT/lion-head-disk.obj" "$OUT/lion-head-area.obj" -o "$OUT/lion-head.svg"
 echo
@@ -103,5 +105,5 @@ cat "$OUT/D.csv"
 "$BC" mds "$OUT/D.csv" -o "$OUT/mds.csv"
 "$BC" render "$OUT/D.csv" -o "$OUT/D.png"
 echo
-echo "== pictures written:"
-ls -1 "$OUT"/*.png "$OUT"/*.svg
+echo "== pictures and reports written (the reports open offline in a browser):"
+ls -1 "$OUT"/*.png "$OUT"/*.svg "$OUT"/*.html
