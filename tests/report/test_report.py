@@ -59,23 +59,26 @@ return [drawn, d.length / 4, colours.size];
 """
 
 
-def check_report(driver, html, report, what):
+def check_report(driver, html, report, what, picture_width=1600, surface=True):
     driver.get("file://" + os.path.abspath(html))
     view = None
-    for _ in range(100):
+    for _ in range(100 if surface else 0):
         view = driver.execute_script("return window.brenierView || null")
         if view:
             break
         time.sleep(0.2)
-    check(view is not None, f"{what}: the 3-D view started")
     errors = [e for e in driver.get_log("browser") if e["level"] in ("SEVERE", "ERROR")]
     check(not errors, f"{what}: no console error: {errors[:3]}")
-    if view:
-        check(view["vertices"] == report["mesh"]["vertices"], f"{what}: the view has the mesh's vertices: {view}")
-    drawn, total, colours = driver.execute_script(CANVAS_PIXELS)
-    check(drawn > 0.05 * total and colours > 20, f"{what}: the WebGL canvas shows the surface: {drawn} of {total} pixels, {colours} colours")
-    width = driver.execute_script("const i = document.getElementById('preview'); return i.complete ? i.naturalWidth : 0")
-    check(width == 1600, f"{what}: the picture decoded, {width} pixels wide")
+    if surface:
+        check(view is not None, f"{what}: the 3-D view started")
+        if view:
+            check(view["vertices"] == report["mesh"]["vertices"], f"{what}: the view has the mesh's vertices: {view}")
+        drawn, total, colours = driver.execute_script(CANVAS_PIXELS)
+        check(drawn > 0.05 * total and colours > 20,
+              f"{what}: the WebGL canvas shows the surface: {drawn} of {total} pixels, {colours} colours")
+    if picture_width:
+        width = driver.execute_script("const i = document.getElementById('preview'); return i && i.complete ? i.naturalWidth : 0")
+        check(width == picture_width, f"{what}: the picture decoded, {width} pixels wide")
     rows = driver.execute_script(
         "return Array.from(document.querySelectorAll('tr[data-key]')).map(r => "
         "[r.dataset.key, r.dataset.value, r.querySelector('td').textContent])")
@@ -118,6 +121,22 @@ try:
               f"{mesh}: the page loads nothing from the network")
         n = check_report(driver, html, report, f"{mesh} on the {domain}")
         check(n > 20, f"{mesh}: {n} figures in the tables")
+    # A matrix's and a distance's reports: the picture (the matrix), the figures, no error.
+    shapes = [os.path.join(data, f"{n}.off") for n in ["nefertiti", "mesh_with_border", "patch-01", "patch-13"]]
+    html = os.path.join(work, "matrix.html")
+    rc, so, se = run("matrix", *shapes, "-o", os.path.join(work, "D.csv"), "--method", "omt-linear", "--report-html", html,
+                     "--json")
+    check(rc == 0, f"matrix --report-html: exit {rc}, {se.strip()}")
+    if rc == 0:
+        summary = json.loads(so)
+        check_report(driver, html, summary, "the matrix report", picture_width=1400, surface=False)
+        cells = driver.execute_script("return document.querySelectorAll('table.matrix td').length")
+        check(cells == 16, f"the matrix report's table has 4 x 4 distances: {cells}")
+    html = os.path.join(work, "distance.html")
+    rc, so, se = run("distance", shapes[0], shapes[1], "--report-html", html, "--json")
+    check(rc == 0, f"distance --report-html: exit {rc}, {se.strip()}")
+    if rc == 0:
+        check_report(driver, html, json.loads(so), "the distance report", picture_width=0, surface=False)
 finally:
     driver.quit()
 

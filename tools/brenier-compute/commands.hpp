@@ -44,6 +44,9 @@ void add_distance(CLI::App& app, Action& action);
 /// render: pictures of map and matrix results.
 void add_render(CLI::App& app, Action& action);
 
+/// Writes a picture or a report whole (Error(kInvalidArgument) naming the file otherwise).
+void write_output(const std::string& path, const std::string& bytes);
+
 /// The labels of `names` from a CSV of "name,label" lines (a first line "name,label" is a
 /// header). Throws kNotFound for an unreadable file, kInvalidArgument for a bad line or a
 /// name without a label.

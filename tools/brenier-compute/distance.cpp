@@ -12,10 +12,12 @@
 #include <sstream>
 
 #include "commands.hpp"
+#include "render/report.hpp"
 #include "common/error.hpp"
 #include "common/parallel.hpp"
 #include "distance/analysis.hpp"
 #include "distance/matrix.hpp"
+#include "render/report.hpp"
 #include "jobs/matrix_work.hpp"
 #include "mesh/geometry.hpp"
 #include "request_flags.hpp"
@@ -59,7 +61,7 @@ void unique_names(std::vector<distance::ShapeInput>& shapes, const std::vector<s
 struct DistanceOptions {
   options::DistanceFlags flags;
   ReadFlags read;
-  std::string a, b;
+  std::string a, b, report_html;
   bool both = false, json = false;
 };
 
@@ -71,11 +73,13 @@ int run_distance(const DistanceOptions& o) {
   if (in[0].name == in[1].name) in[1].name += " (b)";
   jobs::DistanceOutcome d = jobs::run_distance(in[0], in[1], request.shape, hardware_threads());
   const distance::PairResult& r = d.result;
+  nlohmann::json& j = d.report;
+  j["a"] = o.a;
+  j["b"] = o.b;
+  j["seconds"]["total"] = seconds_since(t0);
+  if (!o.report_html.empty())
+    write_output(o.report_html, render::figures_report_html("brenier: distance of " + d.a.name + " and " + d.b.name, j));
   if (o.json) {
-    nlohmann::json& j = d.report;
-    j["a"] = o.a;
-    j["b"] = o.b;
-    j["seconds"]["total"] = seconds_since(t0);
     std::cout << j.dump(2) << std::endl;
   } else {
     std::printf("%s %s %s: %.10g\n", distance::method_name(request.shape.method), d.a.name.c_str(), d.b.name.c_str(),
@@ -96,7 +100,7 @@ struct MatrixCommand {
   options::MatrixFlags flags;
   ReadFlags read;
   std::vector<std::string> files;
-  std::string output, tile, cache, work;
+  std::string output, tile, cache, work, report_html;
   int jobs = 0;
   bool progress = false, json = false;
 };
@@ -179,16 +183,17 @@ int run_matrix(const MatrixCommand& o) {
   } else {
     distance::write_matrix(o.output, tile.names, distance::assemble({tile}), tile.method);
   }
+  const nlohmann::json summary{{"output", o.output},
+                               {"method", tile.method},
+                               {"shapes", tile.names.size()},
+                               {"pairs", tile.pairs.size()},
+                               {"tile", {{"index", tile.tile.index}, {"count", tile.tile.count}}},
+                               {"not_converged", failed},
+                               {"seconds", seconds_since(t0)}};
+  if (!o.report_html.empty())
+    write_output(o.report_html, render::matrix_report_html({distance::assemble({tile}), tile.names, {}}, summary));
   if (o.json)
-    std::cout << nlohmann::json{{"output", o.output},
-                                {"method", tile.method},
-                                {"shapes", tile.names.size()},
-                                {"pairs", tile.pairs.size()},
-                                {"tile", {{"index", tile.tile.index}, {"count", tile.tile.count}}},
-                                {"not_converged", failed},
-                                {"seconds", seconds_since(t0)}}
-                     .dump(2)
-              << std::endl;
+    std::cout << summary.dump(2) << std::endl;
   else
     std::printf("wrote %s: %zu pairs of %zu shapes (%s), %.2f s\n", o.output.c_str(), tile.pairs.size(),
                 tile.names.size(), tile.method.c_str(), seconds_since(t0));
@@ -306,6 +311,7 @@ void add_distance(CLI::App& app, Action& action) {
     o->flags.add_to(cmd);
     o->read.add_to(cmd);
     cmd->add_flag("--both", o->both, "wasserstein: also print both directions");
+    cmd->add_option("--report-html", o->report_html, "write a self-contained HTML report of the figures");
     cmd->add_flag("--json", o->json, "print one JSON object");
     cmd->callback([o, &action] { action = [o] { return run_distance(*o); }; });
   }
@@ -322,6 +328,8 @@ void add_distance(CLI::App& app, Action& action) {
     cmd->add_option("--cache", o->cache, "directory keeping each shape's maps by content hash");
     cmd->add_option("--work", o->work, "a matrix job's work file written by brenierd (shapes, options, cache)");
     cmd->add_flag("--progress", o->progress, "report progress on stderr");
+    cmd->add_option("--report-html", o->report_html, "write a self-contained HTML report (picture, matrix, figures)")
+        ->excludes("--tile");
     cmd->add_flag("--json", o->json, "print a JSON summary");
     cmd->callback([o, &action] { action = [o] { return run_matrix(*o); }; });
   }

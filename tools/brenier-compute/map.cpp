@@ -37,9 +37,7 @@ void write_picture(const jobs::MapOutcome& m, const std::string& input, const st
   const render::Picture p =
       render::map_picture(rows, render::format_of(path), render::map_picture_width(),
                           render::map_picture_height(static_cast<int>(rows.size())));
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out.write(p.bytes.data(), static_cast<std::streamsize>(p.bytes.size()));
-  if (!out.flush()) invalid("cannot write '" + path + "'");
+  write_output(path, p.bytes);
 }
 
 int run_map(const MapOptions& o) {
@@ -53,11 +51,8 @@ int run_map(const MapOptions& o) {
   jobs::MapOutcome m = jobs::run_map(cm, o.input.path, r);
   if (!o.output.empty()) jobs::write_map_file(m, o.output);
   if (!o.picture.empty()) write_picture(m, o.input.path, o.picture);
-  if (!o.report_html.empty()) {
-    std::ofstream out(o.report_html, std::ios::binary | std::ios::trunc);
-    out << render::map_report_html(m, std::filesystem::path(o.input.path).filename().string());
-    if (!out.flush()) invalid("cannot write '" + o.report_html + "'");
-  }
+  if (!o.report_html.empty())
+    write_output(o.report_html, render::map_report_html(m, std::filesystem::path(o.input.path).filename().string()));
 
   nlohmann::json& j = m.report;
   j["seconds"]["read"] = t_read;

@@ -97,9 +97,7 @@ int run_render(const RenderOptions& o) {
     const int rows = static_cast<int>(maps.size());
     p = render::map_picture(maps, format, o.width ? o.width : 1600, o.height ? o.height : 330 * rows, view);
   }
-  std::ofstream out(o.output, std::ios::binary | std::ios::trunc);
-  out.write(p.bytes.data(), static_cast<std::streamsize>(p.bytes.size()));
-  if (!out.flush()) invalid("cannot write '" + o.output + "'");
+  write_output(o.output, p.bytes);
   if (o.json) {
     nlohmann::json j = p.layout.json();
     j["output"] = o.output;
@@ -112,6 +110,12 @@ int run_render(const RenderOptions& o) {
 }
 
 }  // namespace
+
+void write_output(const std::string& path, const std::string& bytes) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  if (!out.flush()) invalid("cannot write '" + path + "'");
+}
 
 void add_render(CLI::App& app, Action& action) {
   auto o = std::make_shared<RenderOptions>();
