@@ -26,6 +26,8 @@ Canvas::Canvas(Format format, int width, int height) : format_(format) {
   surface_ = format == Format::kPng ? cairo_image_surface_create(CAIRO_FORMAT_RGB24, width, height)
                                     : cairo_svg_surface_create_for_stream(append, &svg_, width, height);
   check(cairo_surface_status(surface_), "cannot create the picture");
+  // Pixels, as the PNG (Cairo's default unit, points, shows it a third larger in browsers).
+  if (format == Format::kSvg) cairo_svg_surface_set_document_unit(surface_, CAIRO_SVG_UNIT_PX);
   cr_ = cairo_create(surface_);
   check(cairo_status(cr_), "cannot draw the picture");
   cairo_set_source_rgb(cr_, 1, 1, 1);

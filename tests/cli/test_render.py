@@ -66,7 +66,7 @@ check(kinds == ["surface", "disk", "area_distortion", "angle_distortion", "histo
 svg = os.path.join(work, "lion.svg")
 rc, so, se = run("render", conf, "-o", svg)
 text = open(svg, encoding="utf-8").read() if rc == 0 else ""
-check(rc == 0 and text.startswith("<?xml") and 'width="1600' in text and "</svg>" in text,
+check(rc == 0 and text.startswith("<?xml") and 'width="1600px"' in text and "</svg>" in text,
       f"render to SVG: exit {rc}, {se.strip()}")
 check(len(text) < 3_000_000, f"the SVG keeps its faces as images: {len(text)} bytes")
 

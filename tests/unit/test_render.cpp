@@ -178,8 +178,8 @@ TEST(Render, TheSphereImageFillsItsOutlineAndTwoMapsMakeTwoRows) {
 TEST(Render, SvgHasTheRequestedSize) {
   const Picture p = map_picture({hemisphere_map(4)}, Format::kSvg, 900, 240);
   ASSERT_EQ(p.bytes.rfind("<?xml", 0), 0u);
-  EXPECT_NE(p.bytes.find("width=\"900"), std::string::npos);
-  EXPECT_NE(p.bytes.find("height=\"240"), std::string::npos);
+  EXPECT_NE(p.bytes.find("width=\"900px\""), std::string::npos);
+  EXPECT_NE(p.bytes.find("height=\"240px\""), std::string::npos);
   EXPECT_NE(p.bytes.find("</svg>"), std::string::npos);
 }
 
