@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <optional>
 #include <set>
 
 #include <spdlog/spdlog.h>
@@ -170,14 +171,16 @@ pb::JobResult run_map_job(JobContext& c, const pb::MapSpec& s) {
                                   stem + "." + ext, jobs::map_mesh_bytes(m, format));
   *out.add_artifacts() = artifact(c.store, "report", "application/json", stem + ".json", m.report.dump(2));
   const std::vector<render::MapFigure> rows = render::map_figures(m, rec.name());
-  for (const render::Format f : {render::Format::kPng, render::Format::kSvg})
-    add_drawn(c, out, f == render::Format::kPng ? "preview.png" : "preview.svg",
-              f == render::Format::kPng ? "image/png" : "image/svg+xml", [&] {
-                return render::map_picture(rows, f, render::map_picture_width(),
-                                           render::map_picture_height(static_cast<int>(rows.size())))
-                    .bytes;
-              });
-  add_drawn(c, out, "report.html", "text/html", [&] { return render::map_report_html(m, rec.name()); });
+  const int width = render::map_picture_width(), height = render::map_picture_height(static_cast<int>(rows.size()));
+  std::optional<render::Picture> png;  // drawn once: the preview and the report's picture
+  add_drawn(c, out, "preview.png", "image/png", [&] {
+    png = render::map_picture(rows, render::Format::kPng, width, height);
+    return png->bytes;
+  });
+  add_drawn(c, out, "preview.svg", "image/svg+xml",
+            [&] { return render::map_picture(rows, render::Format::kSvg, width, height).bytes; });
+  add_drawn(c, out, "report.html", "text/html",
+            [&] { return render::map_report_html(m, rec.name(), png ? &*png : nullptr); });
   out.set_converged(true);
   return out;
 }

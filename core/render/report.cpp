@@ -199,10 +199,11 @@ const std::string& three_js() {
   return js;
 }
 
-std::string map_report_html(const jobs::MapOutcome& map, const std::string& name) {
+std::string map_report_html(const jobs::MapOutcome& map, const std::string& name, const Picture* png) {
   const std::vector<MapFigure> rows = map_figures(map, name);
-  const Picture p = map_picture(rows, Format::kPng, map_picture_width(),
-                                map_picture_height(static_cast<int>(rows.size())));
+  const Picture p = png ? *png
+                        : map_picture(rows, Format::kPng, map_picture_width(),
+                                      map_picture_height(static_cast<int>(rows.size())));
   const SurfaceView v = surface_view(map.surface, View{});
   const std::string title = "brenier: " + rows.back().title;
   return page(title, viewer(map.surface, map.positions, map.disk, v.toward, v.up) + picture(p, title) +

@@ -18,9 +18,10 @@ namespace brenier::render {
 /// naming the missing file (install libjs-three).
 const std::string& three_js();
 
-/// A map's report: the title, the pictures of map_picture (PNG, inlined), the figures of
-/// map.report as tables, the surface in 3-D with the checkerboard of its image.
-std::string map_report_html(const jobs::MapOutcome& map, const std::string& name);
+/// A map's report: the title, the pictures of map_picture (PNG, inlined; `png` where the
+/// caller drew it already, at the default size), the figures of map.report as tables, the
+/// surface in 3-D with the checkerboard of its image.
+std::string map_report_html(const jobs::MapOutcome& map, const std::string& name, const Picture* png = nullptr);
 /// A matrix's report: the heat map and MDS picture, the matrix as a table, the figures of
 /// `report` as tables.
 std::string matrix_report_html(const MatrixFigure& matrix, const nlohmann::json& report);
