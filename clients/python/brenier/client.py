@@ -48,7 +48,8 @@ class NamedMatrix(np.ndarray):
 
 
 class MapResult:
-    """A map of a surface: `positions` (V x 3, the surface that was mapped), `faces` (F x 3),
+    """A map of a surface: `positions` (V x 3, the surface that was mapped, as the service
+    cleaned it; None for a sphere map, whose artifact holds only the sphere's points), `faces` (F x 3),
     `uv` (V x 2 on the unit disk; None on the sphere) or `sphere` (V x 3 on the unit sphere),
     `image` (V x 3 either way), `quality` and the whole `report` (dicts), `job_id`."""
 
