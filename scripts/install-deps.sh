@@ -41,9 +41,9 @@ TEST_PACKAGES=(
   # Service tests: a Python client generated from our proto (protoc's grpc python plugin),
   # and openssl to make the TLS test's certificates.
   python3-grpcio python3-protobuf openssl
-  # The Python client package (clients/python): built in a venv over Debian's packages,
-  # with Debian's setuptools (pip --no-build-isolation); tqdm draws its progress bars.
-  python3-venv python3-pip python3-setuptools python3-wheel python3-tqdm
+  # The Python client package (clients/python): pip-installed into a venv over Debian's
+  # packages; tqdm draws its progress bars.
+  python3-venv python3-pip python3-tqdm
   # Sanitizer and fuzz builds (scripts/test.sh --sanitize, scripts/fuzz.sh): clang with its
   # sanitizer and libFuzzer runtimes, LLVM's OpenMP runtime (with Archer, which tells TSan
   # about OpenMP's synchronization) and llvm-symbolizer for readable reports.
