@@ -4,7 +4,8 @@
 # podman does not have one (no image registry is needed); then, since `podman run` is refused
 # in this sandbox, the image's own programs run from `podman image mount` in a chroot, as its
 # user (uid 10001): brenierd serves, `brenier health` (the image's HEALTHCHECK, a grpc.health.v1
-# client) answers SERVING, the image's brenier CLI maps a real mesh through it, and
+# client) answers SERVING, the image's brenier CLI maps a real mesh through it (and fetches the
+# job's report.html and preview.png, drawn in the image), and
 # brenier-compute runs through the entrypoint. Prints the build time and the image's size.
 #
 #   scripts/container-test.sh [--no-build] [--tag brenier:dev]
@@ -102,6 +103,15 @@ check $? "the image's brenier CLI maps a real mesh (mushroom, area-preserving) t
 [[ "$(grep -c '^vt ' "$WORK/data/mushroom-disk.obj" 2>/dev/null)" == "$(grep -c '^v ' "$WORK/data/mushroom-disk.obj" 2>/dev/null)" &&
    -s "$WORK/data/mushroom-disk.obj" ]]
 check $? "its map has one texture coordinate per vertex"
+# The map job's pictures and report: Cairo with its font, and three.js (libjs-three), are in
+# the image's runtime stage.
+JOB="$(in_image brenier --server "127.0.0.1:$PORT" --json jobs | sed -n 's/.*"id": *"\([0-9a-f]\{32\}\)".*/\1/p' | head -n 1)"
+in_image brenier --server "127.0.0.1:$PORT" result "$JOB" --artifact report.html -o /data/report.html >/dev/null 2>&1 &&
+  grep -q OrbitControls "$WORK/data/report.html" && grep -q 'id="mesh-data"' "$WORK/data/report.html"
+check $? "the image writes a map job's report.html with three.js inlined"
+in_image brenier --server "127.0.0.1:$PORT" result "$JOB" --artifact preview.png -o /data/preview.png >/dev/null 2>&1 &&
+  [[ "$(head -c 4 "$WORK/data/preview.png" | tail -c 3)" == PNG ]]
+check $? "and its preview.png"
 in_image /usr/local/bin/docker-entrypoint.sh sh -c 'brenier-compute matrix /data/in/*.off -o /data/D.csv' > "$WORK/matrix.log" 2>&1
 check $? "brenier-compute runs through the entrypoint (a glob in sh -c)"
 [[ "$(head -n 1 "$WORK/data/D.csv" 2>/dev/null)" == "name,mushroom,three_peaks" ]]; check $? "its matrix names both shapes"
