@@ -171,14 +171,13 @@ pb::JobResult run_map_job(JobContext& c, const pb::MapSpec& s) {
                                   stem + "." + ext, jobs::map_mesh_bytes(m, format));
   *out.add_artifacts() = artifact(c.store, "report", "application/json", stem + ".json", m.report.dump(2));
   const std::vector<render::MapFigure> rows = render::map_figures(m, rec.name());
-  const int width = render::map_picture_width(), height = render::map_picture_height(static_cast<int>(rows.size()));
   std::optional<render::Picture> png;  // drawn once: the preview and the report's picture
   add_drawn(c, out, "preview.png", "image/png", [&] {
-    png = render::map_picture(rows, render::Format::kPng, width, height);
+    png = render::default_map_picture(rows, render::Format::kPng);
     return png->bytes;
   });
   add_drawn(c, out, "preview.svg", "image/svg+xml",
-            [&] { return render::map_picture(rows, render::Format::kSvg, width, height).bytes; });
+            [&] { return render::default_map_picture(rows, render::Format::kSvg).bytes; });
   add_drawn(c, out, "report.html", "text/html",
             [&] { return render::map_report_html(m, rec.name(), png ? &*png : nullptr); });
   out.set_converged(true);
@@ -357,10 +356,11 @@ pb::JobResult run_matrix_job(JobContext& c, const pb::MatrixSpec& s) {
                            {"seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count()}};
   *out.add_artifacts() = artifact(c.store, "report", "application/json", "matrix.json", report.dump(2));
   const render::MatrixFigure figure{d, nm, {}};
-  add_drawn(c, out, "preview.png", "image/png",
-            [&] { return render::matrix_picture(figure, render::Format::kPng, 1400, 760).bytes; });
-  add_drawn(c, out, "preview.svg", "image/svg+xml",
-            [&] { return render::matrix_picture(figure, render::Format::kSvg, 1400, 760).bytes; });
+  for (const render::Format f : {render::Format::kPng, render::Format::kSvg})
+    add_drawn(c, out, f == render::Format::kPng ? "preview.png" : "preview.svg",
+              f == render::Format::kPng ? "image/png" : "image/svg+xml", [&] {
+                return render::matrix_picture(figure, f, render::kMatrixPictureWidth, render::kMatrixPictureHeight).bytes;
+              });
   add_drawn(c, out, "report.html", "text/html", [&] { return render::matrix_report_html(figure, report); });
   out.set_converged(failed.empty());
   std::error_code ec;

@@ -358,6 +358,10 @@ std::vector<MapFigure> map_figures(const jobs::MapOutcome& map, const std::strin
   return out;
 }
 
+Picture default_map_picture(const std::vector<MapFigure>& rows, Format format) {
+  return map_picture(rows, format, kMapPictureWidth, kMapRowHeight * static_cast<int>(rows.size()));
+}
+
 Picture map_picture(const std::vector<MapFigure>& maps, Format format, int width, int height, const View& view) {
   detail::check_picture_size(width, height);
   if (maps.empty()) invalid("no map to draw");

@@ -101,9 +101,11 @@ Picture map_picture(const std::vector<MapFigure>& maps, Format format, int width
 /// The rows of a computed map: the map itself, and for an area-preserving map first the
 /// conformal map it started from (titled with `name`, the domain and the method).
 std::vector<MapFigure> map_figures(const jobs::MapOutcome& map, const std::string& name);
-/// The default size of a picture of `rows` maps.
-inline int map_picture_width() { return 1600; }
-inline int map_picture_height(int rows) { return 330 * rows; }
+/// The default sizes: maps 1600 pixels wide and 330 per row, a matrix 1400 x 760.
+inline constexpr int kMapPictureWidth = 1600, kMapRowHeight = 330;
+inline constexpr int kMatrixPictureWidth = 1400, kMatrixPictureHeight = 760;
+/// map_picture of `rows` at the default size and view.
+Picture default_map_picture(const std::vector<MapFigure>& rows, Format format);
 
 /// A distance matrix with its shapes' names and, optionally, labels (empty, or one per
 /// shape).

@@ -201,9 +201,7 @@ const std::string& three_js() {
 
 std::string map_report_html(const jobs::MapOutcome& map, const std::string& name, const Picture* png) {
   const std::vector<MapFigure> rows = map_figures(map, name);
-  const Picture p = png ? *png
-                        : map_picture(rows, Format::kPng, map_picture_width(),
-                                      map_picture_height(static_cast<int>(rows.size())));
+  const Picture p = png ? *png : default_map_picture(rows, Format::kPng);
   const SurfaceView v = surface_view(map.surface, View{});
   const std::string title = "brenier: " + rows.back().title;
   return page(title, viewer(map.surface, map.positions, map.disk, v.toward, v.up) + picture(p, title) +
@@ -211,7 +209,7 @@ std::string map_report_html(const jobs::MapOutcome& map, const std::string& name
 }
 
 std::string matrix_report_html(const MatrixFigure& m, const nlohmann::json& report) {
-  const Picture p = matrix_picture(m, Format::kPng, 1400, 760);
+  const Picture p = matrix_picture(m, Format::kPng, kMatrixPictureWidth, kMatrixPictureHeight);
   const std::vector<int> order = matrix_order(m);
   std::string table = "<section id=\"matrix\"><h2>Distances</h2><table class=\"matrix\"><tr><th></th>";
   for (int j : order) table += "<th>" + escape(m.names[static_cast<size_t>(j)]) + "</th>";

@@ -100,7 +100,13 @@ check(png_size(png) == (1400, 760), f"the matrix picture's default size: {png_si
 check(lay["bars"][0]["hi"] == 3.5, "the distance bar ends at the largest distance")
 check(sorted(p["kind"] for p in lay["panels"]) == ["heatmap", "mds"], "heat map and MDS panels")
 
-# Refusals: one stderr line, exit 2.
+# Refusals: one stderr line, exit 2. A surface with the map's vertices but one face fewer:
+# the faces' counts are compared before the faces.
+lines = [l for l in open(os.path.join(data, "oblong.off")).read().split("\n") if l.strip()]
+nv, nf, ne = map(int, lines[1].split())
+short = os.path.join(work, "oblong-short.off")
+with open(short, "w") as f:
+    f.write("\n".join(["OFF", f"{nv} {nf - 1} {ne}"] + lines[2:2 + nv + nf - 1]) + "\n")
 for args, says in [
     ([os.path.join(data, "lion-head.off"), "-o", os.path.join(work, "x.png")], "is no map"),
     ([conf, "-o", os.path.join(work, "x.jpg")], ".png or .svg"),
@@ -109,6 +115,7 @@ for args, says in [
     ([mat, conf, "-o", os.path.join(work, "x.png")], "one matrix at a time"),
     ([mat, "--labels", os.path.join(work, "none.csv"), "-o", os.path.join(work, "x.png")], "labels file"),
     ([sph, "--surface", os.path.join(data, "lion-head.off"), "-o", os.path.join(work, "x.png")], "is not the surface"),
+    ([sph, "--surface", short, "-o", os.path.join(work, "x.png")], "is not the surface"),
 ]:
     rc, so, se = run("render", *args)
     check(rc == 2 and says in se and se.count("\n") == 1, f"render {args[0]} ...: exit {rc}, stderr {se!r}")

@@ -34,10 +34,7 @@ double seconds_since(std::chrono::steady_clock::time_point t0) {
 // The map's picture (render::map_picture; an area-preserving map beside its conformal start).
 void write_picture(const jobs::MapOutcome& m, const std::string& input, const std::string& path) {
   const std::vector<render::MapFigure> rows = render::map_figures(m, std::filesystem::path(input).filename().string());
-  const render::Picture p =
-      render::map_picture(rows, render::format_of(path), render::map_picture_width(),
-                          render::map_picture_height(static_cast<int>(rows.size())));
-  write_output(path, p.bytes);
+  write_output(path, render::default_map_picture(rows, render::format_of(path)).bytes);
 }
 
 int run_map(const MapOptions& o) {

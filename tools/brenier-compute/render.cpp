@@ -24,8 +24,8 @@ struct RenderOptions {
 };
 
 bool is_matrix_file(const std::string& path) {
-  auto ends = [&](const char* e) { return path.size() > 4 && path.compare(path.size() - 4, 4, e) == 0; };
-  return ends(".csv") || ends("json");
+  const std::string ext = std::filesystem::path(path).extension().string();
+  return ext == ".csv" || ext == ".json";
 }
 
 mesh::TriMesh triangles(const mesh::PolygonSoup& s, const std::string& path) {
@@ -69,7 +69,8 @@ render::MapFigure read_map(const std::string& path, const std::string& surface_p
   m.surface.F = read.F;
   if (!surface_path.empty()) {
     const mesh::TriMesh s = triangles(mesh::read_soup_file(surface_path), surface_path);
-    if (s.V.rows() != read.V.rows() || s.F != read.F)
+    // The sizes first: Eigen compares matrices of equal sizes only.
+    if (s.V.rows() != read.V.rows() || s.F.rows() != read.F.rows() || s.F != read.F)
       invalid(surface_path + " is not the surface of " + path + " (other vertices or faces)");
     m.surface.V = s.V;
   } else {
@@ -89,13 +90,15 @@ int run_render(const RenderOptions& o) {
     render::MatrixFigure m;
     distance::read_matrix(o.results[0], m.names, m.d);
     if (!o.labels.empty()) m.labels = read_labels(o.labels, m.names);
-    p = render::matrix_picture(m, format, o.width ? o.width : 1400, o.height ? o.height : 760);
+    p = render::matrix_picture(m, format, o.width ? o.width : render::kMatrixPictureWidth,
+                               o.height ? o.height : render::kMatrixPictureHeight);
   } else {
     if (!o.labels.empty()) invalid("--labels is for a matrix");
     std::vector<render::MapFigure> maps;
     for (const std::string& r : o.results) maps.push_back(read_map(r, o.surface));
     const int rows = static_cast<int>(maps.size());
-    p = render::map_picture(maps, format, o.width ? o.width : 1600, o.height ? o.height : 330 * rows, view);
+    p = render::map_picture(maps, format, o.width ? o.width : render::kMapPictureWidth,
+                            o.height ? o.height : render::kMapRowHeight * rows, view);
   }
   write_output(o.output, p.bytes);
   if (o.json) {
