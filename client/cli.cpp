@@ -199,6 +199,51 @@ void add_map(CLI::App& app, const Global& g, Action& action) {
   cmd->callback([&g, &action, m] { action = [&g, m](Client& c) { return run_map(c, g, *m); }; });
 }
 
+struct RegisterArgs {
+  std::string source, target, output, morph, report;
+  brenier::options::RegisterFlags flags;
+  bool no_wait = false;
+};
+
+int run_register(Client& c, const Global& g, const RegisterArgs& a) {
+  pb::SubmitJobRequest r;
+  pb::RegisterSpec* s = r.mutable_registration();
+  brenier::spec::to_proto(a.flags.resolve(), s);
+  s->set_source(mesh_id(c, a.source));
+  s->set_target(mesh_id(c, a.target));
+  if (!a.morph.empty()) {
+    const std::string ext = std::filesystem::path(a.morph).extension().string();
+    s->set_output_format(ext.empty() ? "obj" : ext.substr(1));
+  }
+  bool done = false;
+  const pb::Job j = run_job(c, g, r, a.no_wait, &done);
+  if (!done) return print_submitted(g, j);
+  if (j.state() != pb::SUCCEEDED) return job_exit(j);
+  if (!a.output.empty()) c.download(j.id(), a.output, "correspondence");
+  if (!a.morph.empty()) c.download(j.id(), a.morph, "morph");
+  const std::string report = c.fetch(j.id(), "report");
+  if (!a.report.empty()) std::ofstream(a.report) << report;
+  print_report(g, j, report, [&](const nlohmann::json& rep) {
+    std::printf("job %s: %s; %d domain folds, %d flipped morph faces\n", j.id().c_str(),
+                a.output.empty() ? "done" : ("wrote " + a.output).c_str(), rep["domain_folded_faces"].get<int>(),
+                rep["morph_flipped_faces"].get<int>());
+  });
+  return kOk;
+}
+
+void add_register(CLI::App& app, const Global& g, Action& action) {
+  auto a = std::make_shared<RegisterArgs>();
+  auto* cmd = app.add_subcommand("register", "register a mesh onto another (Alg. 7; files or ids)");
+  cmd->add_option("source", a->source, "source mesh file or id")->required();
+  cmd->add_option("target", a->target, "target mesh file or id")->required();
+  a->flags.add_to(cmd);
+  cmd->add_option("-o,--output", a->output, "write the correspondence CSV here");
+  cmd->add_option("--morph", a->morph, "write the source placed on the target here (.obj, .ply, .off)");
+  cmd->add_option("--report", a->report, "write the JSON report here");
+  cmd->add_flag("--no-wait", a->no_wait, "print the job and return at once");
+  cmd->callback([&g, &action, a] { action = [&g, a](Client& c) { return run_register(c, g, *a); }; });
+}
+
 struct DistanceArgs {
   std::string a, b;
   brenier::options::DistanceFlags flags;
@@ -424,6 +469,7 @@ int main(int argc, char** argv) {
   Action action;
   add_upload(app, g, action);
   add_map(app, g, action);
+  add_register(app, g, action);
   add_distance(app, g, action);
   add_matrix(app, g, action);
   add_mesh_commands(app, g, action);

@@ -139,4 +139,28 @@ jobs::MatrixRequest from_proto(const pb::MatrixSpec& s) {
   return r;
 }
 
+void to_proto(const jobs::RegisterRequest& r, pb::RegisterSpec* s) {
+  s->set_domain(to_proto(r.domain));
+  s->set_method(to_proto(r.method));
+  s->set_cut_hole(r.cut_hole);
+  for (int v : r.source_landmarks) s->add_source_landmarks(v);
+  for (int v : r.target_landmarks) s->add_target_landmarks(v);
+  s->set_tolerance(r.tolerance);
+  s->set_max_iterations(r.max_iterations);
+}
+
+jobs::RegisterRequest from_proto(const pb::RegisterSpec& s) {
+  jobs::RegisterRequest r;
+  r.domain = from_proto(s.domain());
+  // Unspecified is the OMT route here (Alg. 7's own), unlike a map job's default.
+  r.method = s.method() == pb::CONFORMAL ? jobs::MapMethod::kConformal : jobs::MapMethod::kAreaPreserving;
+  r.cut_hole = s.cut_hole();
+  r.source_landmarks.assign(s.source_landmarks().begin(), s.source_landmarks().end());
+  r.target_landmarks.assign(s.target_landmarks().begin(), s.target_landmarks().end());
+  r.tolerance = s.tolerance();
+  if (s.max_iterations() != 0) r.max_iterations = s.max_iterations();
+  r.validate();
+  return r;
+}
+
 }  // namespace brenier::spec

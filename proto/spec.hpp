@@ -22,9 +22,11 @@ distance::Method from_proto(pb::DistanceMethod m);
 void to_proto(const jobs::MapRequest& r, pb::MapSpec* s);
 void to_proto(const jobs::DistanceRequest& r, pb::DistanceSpec* s);
 void to_proto(const jobs::MatrixRequest& r, pb::MatrixSpec* s);
+void to_proto(const jobs::RegisterRequest& r, pb::RegisterSpec* s);
 
 jobs::MapRequest from_proto(const pb::MapSpec& s);
 jobs::DistanceRequest from_proto(const pb::DistanceSpec& s);
 jobs::MatrixRequest from_proto(const pb::MatrixSpec& s);
+jobs::RegisterRequest from_proto(const pb::RegisterSpec& s);
 
 }  // namespace brenier::spec

@@ -82,6 +82,21 @@ std::string check_matrix(const pb::MatrixSpec& s, const MeshLookup& mesh, const 
   return "matrix";
 }
 
+std::string check_register(const pb::RegisterSpec& s, const MeshLookup& mesh, const SpecLimits& limits) {
+  if (s.source_landmarks_size() > limits.max_vertices || s.target_landmarks_size() > limits.max_vertices)
+    invalid("more {landmarks} than this server's meshes have vertices");
+  const jobs::RegisterRequest r = spec::from_proto(s);
+  output_format(s.output_format());
+  const pb::Mesh a = mesh(s.source()), b = mesh(s.target());
+  require_fits(a, r.domain, r.cut_hole);
+  require_fits(b, r.domain, r.cut_hole);
+  if (a.topology_class() != b.topology_class() || a.genus() != b.genus() || a.boundary_loops() != b.boundary_loops())
+    invalid("meshes " + a.name() + " and " + b.name() + " are of different topology (genus " + std::to_string(a.genus()) +
+            " with " + std::to_string(a.boundary_loops()) + " boundary loops, genus " + std::to_string(b.genus()) + " with " +
+            std::to_string(b.boundary_loops()) + "): they cannot be registered");
+  return "register";
+}
+
 pb::Artifact artifact(Store& store, const std::string& name, const std::string& media, const std::string& filename,
                       const std::string& bytes) {
   pb::Artifact a;
@@ -117,7 +132,8 @@ std::string check_spec(const pb::SubmitJobRequest& request, const MeshLookup& me
     case pb::SubmitJobRequest::kMap: return check_map(request.map(), mesh, limits);
     case pb::SubmitJobRequest::kDistance: return check_distance(request.distance(), mesh);
     case pb::SubmitJobRequest::kMatrix: return check_matrix(request.matrix(), mesh, limits);
-    default: invalid("the job has no spec (map, distance or matrix)");
+    case pb::SubmitJobRequest::kRegistration: return check_register(request.registration(), mesh, limits);
+    default: invalid("the job has no spec (map, distance, matrix or registration)");
   }
 }
 
@@ -202,6 +218,26 @@ pb::JobResult run_distance_job(JobContext& c, const pb::DistanceSpec& s) {
     return render::figures_report_html("brenier: distance of " + ra.name() + " and " + rb.name(), d.report);
   });
   out.set_distance(d.result.distance);
+  out.set_converged(true);
+  return out;
+}
+
+// Registration (Alg. 7): the correspondence CSV, the morph and the report.
+pb::JobResult run_register_job(JobContext& c, const pb::RegisterSpec& s) {
+  const jobs::RegisterRequest r = spec::from_proto(s);
+  const mesh::Format format = output_format(s.output_format());
+  pb::Mesh ra, rb;
+  const mesh::CleanMesh a = c.load(s.source(), &ra), b = c.load(s.target(), &rb);
+  jobs::RegisterOutcome reg = jobs::run_register(a, b, ra.name(), rb.name(), r, 1, c.sink());
+  c.check();
+  reg.report["source"]["id"] = s.source();
+  reg.report["target"]["id"] = s.target();
+  const std::string stem = ra.name() + "-to-" + rb.name();
+  pb::JobResult out;
+  *out.add_artifacts() = artifact(c.store, "correspondence", "text/csv", stem + ".csv", jobs::correspondence_csv(reg));
+  *out.add_artifacts() = artifact(c.store, "morph", format == mesh::Format::kObj ? "model/obj" : "application/octet-stream",
+                                  stem + "." + mesh::format_name(format), mesh::write_mesh_string(reg.morph, format));
+  *out.add_artifacts() = artifact(c.store, "report", "application/json", stem + ".json", reg.report.dump(2));
   out.set_converged(true);
   return out;
 }
@@ -375,6 +411,7 @@ pb::JobResult run_spec(JobContext& c, const pb::SubmitJobRequest& spec) {
     case pb::SubmitJobRequest::kMap: return run_map_job(c, spec.map());
     case pb::SubmitJobRequest::kDistance: return run_distance_job(c, spec.distance());
     case pb::SubmitJobRequest::kMatrix: return run_matrix_job(c, spec.matrix());
+    case pb::SubmitJobRequest::kRegistration: return run_register_job(c, spec.registration());
     default: invalid("the job has no spec");
   }
 }

@@ -3,6 +3,8 @@
 // answers and the same errors. No I/O here but what the caller asks for.
 #pragma once
 
+#include <array>
+#include <cstdint>
 #include <functional>
 #include <nlohmann/json.hpp>
 #include <string>
@@ -45,6 +47,9 @@ struct MapOutcome {
   /// The conformal map an area-preserving map started from (#V by 3, as `positions`); empty
   /// for a conformal map.
   mesh::Vertices conformal;
+  std::vector<int> vertex_origin;  // #V of `surface`: its input vertex number
+  std::vector<int> face_origin;    // #F of `surface`: its face in the cleaned mesh
+  int cut_vertex = -1;             // the input vertex a cut hole removed (-1: none)
   /// mesh, cut_hole_vertex, domain, method, seconds{map}, conformal{...}, omt{...},
   /// quality{...}, problems (the DESIGN.md contract; the caller adds seconds.read/total).
   nlohmann::json report;
@@ -95,6 +100,45 @@ DistanceOutcome run_distance(const distance::ShapeInput& a, const distance::Shap
 
 /// What to say of a pair whose transport did not converge (its worst cell-mass error).
 std::string not_converged_message(const distance::PairResult& r);
+
+// ---- registration ------------------------------------------------------------------------
+
+/// Where one source vertex lands on the target: an input vertex of the source, the target's
+/// input face (polygon) and, for its triangle, the three input vertices and barycentric
+/// coordinates, and the point itself.
+struct CorrespondenceRow {
+  int source_vertex = -1;
+  int64_t target_face = -1;
+  std::array<int, 3> target_vertices{};
+  Eigen::Vector3d bary = Eigen::Vector3d(1, 0, 0);
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();
+};
+
+struct RegisterOutcome {
+  std::vector<CorrespondenceRow> rows;  // one per vertex of the cleaned source mesh
+  /// The source's cleaned mesh placed on the target: its faces over the rows' positions.
+  mesh::TriMesh morph;
+  /// Where each morph vertex lies on the cleaned target mesh (face of `target_mesh`, bary).
+  mesh::TriMesh target_mesh;
+  std::vector<std::pair<int, Eigen::Vector3d>> target_points;
+  /// domain, method, landmarks, source{map report}, target{map report}, match{rotation_rad,
+  /// steps, max_landmark_error}, domain_folded_faces, morph_flipped_faces, seconds{...}.
+  nlohmann::json report;
+};
+
+/// Alg. 7: both meshes mapped onto the domain (run_map: area-preserving or conformal,
+/// bijective), g matching the landmarks (registration/domain_match.hpp), and every source
+/// vertex located on the target through g. Meshes must have one topology class that fits
+/// the domain; landmark vertex numbers must be vertices of their meshes. Throws
+/// Error(kInvalidArgument) for input that does not fit, kNotConverged when a map does not
+/// converge, kCancelled when `progress` returned false. `threads` > 1 maps both meshes at once.
+RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMesh& target, const std::string& source_what,
+                             const std::string& target_what, const RegisterRequest& request, int threads = 1,
+                             const ProgressSink& progress = {});
+
+/// The correspondence as CSV: a header, then source_vertex,target_face,target_v0,target_v1,
+/// target_v2,b0,b1,b2,x,y,z per row (17 significant digits).
+std::string correspondence_csv(const RegisterOutcome& r);
 
 /// Progress callbacks of the numerical loops (omt::Progress) reporting into `sink` under
 /// `stage`, the fraction estimated from the residual's way down to `tolerance` and mapped

@@ -77,10 +77,13 @@ struct Surface {
   mesh::TriMesh mesh;
   std::vector<int> origin;   // input vertex of each vertex
   std::vector<int> to_mesh;  // vertex of each input vertex (-1: removed or merged away)
+  std::vector<int> faces;    // the cleaned mesh's face of each face
   int cut_vertex = -1;       // input number of the vertex a cut hole removed
 
   Surface(const mesh::CleanMesh& cm) : mesh(cm.mesh), origin(cm.vertex_origin) {
     to_mesh.assign(static_cast<size_t>(cm.input_vertices), -1);
+    faces.resize(static_cast<size_t>(mesh.num_faces()));
+    for (size_t f = 0; f < faces.size(); ++f) faces[f] = static_cast<int>(f);
     renumber();
   }
   void renumber() {
@@ -98,6 +101,9 @@ struct Surface {
     std::vector<int> o2;
     for (int v : cut.vertex_origin) o2.push_back(origin[v]);
     origin = std::move(o2);
+    std::vector<int> f2;
+    for (int f : cut.face_origin) f2.push_back(faces[static_cast<size_t>(f)]);
+    faces = std::move(f2);
     mesh = std::move(cut.mesh);
     renumber();
   }
@@ -250,6 +256,9 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
   if (!o.allow_flips) require_bijective(q, s, out.positions, what);
   out.report = map_report(cm, o, s, t_map, map, ap ? &*ap : nullptr, q);
   out.surface = std::move(s.mesh);
+  out.vertex_origin = std::move(s.origin);
+  out.face_origin = std::move(s.faces);
+  out.cut_vertex = s.cut_vertex;
   return out;
 }
 

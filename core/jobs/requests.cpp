@@ -3,6 +3,8 @@
 #include "jobs/requests.hpp"
 
 #include <array>
+#include <cerrno>
+#include <cstdint>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -98,6 +100,30 @@ void MapRequest::validate() const {
       invalid("weight " + std::to_string(i) + " is " + std::to_string(weights[i]) + "; {weights} must be positive numbers");
 }
 
+void RegisterRequest::validate() const {
+  if (source_landmarks.size() != target_landmarks.size())
+    invalid("the source has " + std::to_string(source_landmarks.size()) + " landmarks and the target " +
+            std::to_string(target_landmarks.size()) + "; {landmarks} are paired by order");
+  if (source_landmarks.size() > kMaxLandmarks)
+    invalid(std::to_string(source_landmarks.size()) + " {landmarks}; at most " + std::to_string(kMaxLandmarks));
+  for (const auto* list : {&source_landmarks, &target_landmarks}) {
+    const char* which = list == &source_landmarks ? "source" : "target";
+    for (size_t i = 0; i < list->size(); ++i) {
+      if ((*list)[i] < 0)
+        invalid(std::string(which) + " landmark " + std::to_string(i + 1) + " is " + std::to_string((*list)[i]) +
+                "; {landmarks} are vertex numbers");
+      for (size_t j = 0; j < i; ++j)
+        if ((*list)[j] == (*list)[i])
+          invalid(std::string(which) + " landmarks " + std::to_string(j + 1) + " and " + std::to_string(i + 1) +
+                  " are the same vertex " + std::to_string((*list)[i]));
+    }
+  }
+  if (domain == Domain::kSphere && cut_hole) invalid("{cut_hole} applies to the disk domain");
+  if (!finite_at_least(tolerance, 0)) invalid("{tolerance} must be a positive number");
+  if (max_iterations < 1 || max_iterations > MapRequest::kMaxIterations)
+    invalid("{max_iterations} must lie in [1, " + std::to_string(MapRequest::kMaxIterations) + "]");
+}
+
 void ShapeRequest::validate() const {
   const bool sphere = domain == Domain::kSphere;
   if (sphere && cut_hole) invalid("{cut_hole} applies to the disk domain");
@@ -148,6 +174,26 @@ std::vector<double> read_weights_file(const std::string& path) {
   }
   if (w.empty()) invalid(path + ": no weights");
   return w;
+}
+
+std::vector<int> read_landmarks_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) invalid("cannot read the landmarks file " + path);
+  std::vector<int> out;
+  std::string line;
+  for (int n = 1; std::getline(in, line); ++n) {
+    while (!line.empty() && (line.back() == '\r' || line.back() == ' ' || line.back() == '\t')) line.pop_back();
+    size_t b = line.find_first_not_of(" \t");
+    if (b == std::string::npos || line[b] == '#') continue;
+    const std::string tok = line.substr(b);
+    char* end = nullptr;
+    errno = 0;
+    const long v = std::strtol(tok.c_str(), &end, 10);
+    if (end == tok.c_str() || *end != '\0' || errno != 0 || v < 0 || v > INT32_MAX)
+      invalid(path + ":" + std::to_string(n) + ": '" + tok + "' is not a vertex number");
+    out.push_back(static_cast<int>(v));
+  }
+  return out;
 }
 
 MarkersFile read_markers_file(const std::string& path) {

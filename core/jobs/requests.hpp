@@ -86,6 +86,26 @@ struct MatrixRequest {
   void validate(size_t meshes) const;
 };
 
+/// Surface registration (Alg. 7): the source's vertices placed on the target through their
+/// parameter domains, f = phi2^-1 o g o phi1.
+struct RegisterRequest {
+  Domain domain = Domain::kDisk;
+  MapMethod method = MapMethod::kAreaPreserving;  // phi1, phi2: area-preserving or conformal maps
+  bool cut_hole = false;  // disk: open closed genus-0 meshes (at the first landmark pair if any)
+  /// Input vertex numbers of each mesh, paired by order (landmark k of the source goes onto
+  /// landmark k of the target).
+  std::vector<int> source_landmarks, target_landmarks;
+  double tolerance = 0;  // the maps' tolerance (0: their default)
+  int max_iterations = 200;
+
+  static constexpr size_t kMaxLandmarks = 10000;
+  void validate() const;
+};
+
+/// A landmarks file: one vertex number per line (blank lines and lines starting with '#'
+/// skipped). Error(kInvalidArgument) naming the file and line.
+std::vector<int> read_landmarks_file(const std::string& path);
+
 /// Whitespace-separated positive weights (Error(kInvalidArgument) naming the file and the
 /// entry otherwise); their count is checked against the mesh when the job runs.
 std::vector<double> read_weights_file(const std::string& path);

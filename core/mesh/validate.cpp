@@ -526,6 +526,16 @@ void check_duplicate_vertices(CleanMesh& cm, const CleanOptions& opt) {
 
 }  // namespace
 
+CleanMesh clean(const TriMesh& mesh, const CleanOptions& options) {
+  PolygonSoup soup;
+  for (int i = 0; i < mesh.num_vertices(); ++i) soup.positions.push_back(mesh.V.row(i).transpose());
+  for (int f = 0; f < mesh.num_faces(); ++f) {
+    for (int k = 0; k < 3; ++k) soup.indices.push_back(mesh.F(f, k));
+    soup.face_offsets.push_back(static_cast<int64_t>(soup.indices.size()));
+  }
+  return clean(soup, options);
+}
+
 CleanMesh clean(const PolygonSoup& soup, const CleanOptions& opt) {
   CleanMesh cm;
   Report& r = cm.report;

@@ -47,6 +47,9 @@ struct CleanMesh {
 /// errors, `mesh` may be empty or partial and must not be used for computation.
 CleanMesh clean(const PolygonSoup& soup, const CleanOptions& options = {});
 
+/// The same checks for a triangle mesh built in memory (its vertices and faces as a soup).
+CleanMesh clean(const TriMesh& mesh, const CleanOptions& options = {});
+
 /// Reads and cleans a file; read failures (corrupt, truncated, unknown format) throw.
 CleanMesh load_mesh(const std::string& path, const CleanOptions& options = {},
                     std::optional<Format> format = std::nullopt, const ReadLimits& limits = {});

@@ -43,6 +43,8 @@ void add_omt_bench(CLI::App& app, Action& action);
 void add_distance(CLI::App& app, Action& action);
 /// render: pictures of map and matrix results.
 void add_render(CLI::App& app, Action& action);
+/// register: surface registration (Alg. 7).
+void add_register(CLI::App& app, Action& action);
 
 /// Writes a picture or a report whole (Error(kInvalidArgument) naming the file otherwise).
 void write_output(const std::string& path, const std::string& bytes);

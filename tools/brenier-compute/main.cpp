@@ -50,6 +50,7 @@ int main(int argc, char** argv) {
   brenier::tools::add_omt_bench(app, action);
   brenier::tools::add_distance(app, action);
   brenier::tools::add_render(app, action);
+  brenier::tools::add_register(app, action);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -5,6 +5,8 @@
 #include <string_view>
 #include <vector>
 
+#include "common/error.hpp"
+
 namespace brenier::options {
 namespace {
 
@@ -68,6 +70,34 @@ void MapFlags::add_to(CLI::App* cmd) {
 jobs::MapRequest MapFlags::resolve() const {
   jobs::MapRequest r = request;
   if (!weights_file.empty()) r.weights = jobs::read_weights_file(weights_file);
+  r.validate();
+  return r;
+}
+
+void RegisterFlags::add_to(CLI::App* cmd) {
+  jobs::RegisterRequest& r = request;
+  add_domain(cmd, r.domain, "disk (topological disks; closed genus-0 meshes with --cut-hole) or sphere (closed genus-0)");
+  cmd->add_option("--method", r.method, "the parameter maps: area-preserving (OMT, Alg. 3; default) or conformal")
+      ->transform(choices({jobs::MapMethod::kConformal, jobs::MapMethod::kAreaPreserving}, jobs::map_method_name, jobs::find_map_method));
+  cmd->add_flag("--cut-hole", r.cut_hole,
+                "disk: open closed genus-0 meshes by removing one vertex's star (at the first landmark pair if given)");
+  cmd->add_option("--landmarks", landmark_files,
+                  "two files, the source's and the target's landmarks: one vertex number per line, paired by order")
+      ->expected(2);
+  cmd->add_option("--tolerance", r.tolerance, "the maps' tolerance (as map --tolerance)")->check(CLI::PositiveNumber);
+  cmd->add_option("--max-iterations", r.max_iterations, "Newton iterations of each map (default 200)")
+      ->check(CLI::Range(1, jobs::MapRequest::kMaxIterations));
+}
+
+jobs::RegisterRequest RegisterFlags::resolve() const {
+  jobs::RegisterRequest r = request;
+  if (landmark_files.size() == 2) {
+    r.source_landmarks = jobs::read_landmarks_file(landmark_files[0]);
+    r.target_landmarks = jobs::read_landmarks_file(landmark_files[1]);
+    if (r.source_landmarks.size() != r.target_landmarks.size())
+      invalid(landmark_files[0] + " has " + std::to_string(r.source_landmarks.size()) + " landmarks and " + landmark_files[1] +
+              " has " + std::to_string(r.target_landmarks.size()) + "; they are paired by order");
+  }
   r.validate();
   return r;
 }

@@ -50,4 +50,13 @@ struct MatrixFlags {
   jobs::MatrixRequest resolve(const std::vector<std::string>& meshes) const;
 };
 
+/// register: --domain --method --cut-hole --landmarks S T --tolerance --max-iterations.
+struct RegisterFlags {
+  jobs::RegisterRequest request;
+  std::vector<std::string> landmark_files;  // the source's and the target's
+  void add_to(CLI::App* cmd);
+  /// The request with the landmark files read, validated.
+  jobs::RegisterRequest resolve() const;
+};
+
 }  // namespace brenier::options

@@ -1,0 +1,221 @@
+// Surface registration (dissertation sec. 4.3, Alg. 7): f = phi2^-1 o g o phi1, phi_i the
+// maps of the two meshes onto one parameter domain (run_map), g the landmark-matching
+// bijection of the domain (registration/domain_match.hpp), and the target located through
+// its own map (registration/correspondence.hpp).
+#include <chrono>
+#include <cstdio>
+#include <future>
+#include <mutex>
+#include <sstream>
+#include <unordered_map>
+
+#include "common/error.hpp"
+#include "conformal/conformal_map.hpp"
+#include "jobs/jobs.hpp"
+#include "register/correspondence.hpp"
+#include "register/domain_match.hpp"
+
+namespace brenier::jobs {
+
+namespace {
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// Input vertex number -> vertex of `origin`'s mesh (-1: none).
+std::vector<int> inverse(const std::vector<int>& origin, int64_t inputs) {
+  std::vector<int> to(static_cast<size_t>(inputs), -1);
+  for (size_t i = 0; i < origin.size(); ++i) to[static_cast<size_t>(origin[i])] = static_cast<int>(i);
+  return to;
+}
+
+void check_landmarks(const std::vector<int>& landmarks, const mesh::CleanMesh& cm, const std::string& what) {
+  const std::vector<int> to = inverse(cm.vertex_origin, cm.input_vertices);
+  for (size_t k = 0; k < landmarks.size(); ++k) {
+    const int v = landmarks[k];
+    if (v >= cm.input_vertices)
+      invalid(what + ": landmark " + std::to_string(k + 1) + " is vertex " + std::to_string(v) + ", but the mesh has " +
+              std::to_string(cm.input_vertices) + " vertices");
+    if (to[static_cast<size_t>(v)] < 0)
+      invalid(what + ": landmark " + std::to_string(k + 1) + " is vertex " + std::to_string(v) +
+              ", which cleaning merged or dropped (not a vertex of the surface)");
+  }
+}
+
+// One mesh's progress into a share [from, to] of the whole job, under "<side> <stage>".
+ProgressSink share(const ProgressSink& sink, std::mutex& m, const std::string& side, double from, double to) {
+  if (!sink) return {};
+  return [&sink, &m, side, from, to](const Progress& p) {
+    std::lock_guard<std::mutex> lock(m);
+    return sink(Progress{side + " " + p.stage, from + (to - from) * p.fraction, p.iteration, p.residual});
+  };
+}
+
+std::vector<char> boundary_vertices(const mesh::TriMesh& m) {
+  std::vector<char> b(static_cast<size_t>(m.num_vertices()), 0);
+  for (const auto& loop : mesh::boundary_loops(m))
+    for (int v : loop) b[static_cast<size_t>(v)] = 1;
+  return b;
+}
+
+// The landmark pairs in domain coordinates (the first pair is the cut holes with cut_hole).
+std::vector<registration::LandmarkPair> domain_landmarks(const RegisterRequest& r, const MapOutcome& a,
+                                                         const MapOutcome& b, int64_t inputs_a, int64_t inputs_b) {
+  const std::vector<int> ta = inverse(a.vertex_origin, inputs_a), tb = inverse(b.vertex_origin, inputs_b);
+  const std::vector<char> bb = boundary_vertices(b.surface);
+  std::vector<registration::LandmarkPair> out;
+  for (size_t k = r.cut_hole ? 1 : 0; k < r.source_landmarks.size(); ++k) {
+    const int sa = r.source_landmarks[k], sb = r.target_landmarks[k];
+    const int ia = ta[static_cast<size_t>(sa)], ib = tb[static_cast<size_t>(sb)];
+    if (ia < 0 || ib < 0)
+      invalid("landmark " + std::to_string(k + 1) + " (" + std::to_string(sa) + " -> " + std::to_string(sb) +
+              ") is a cut hole's vertex; with {cut_hole}, only the first landmark pair marks the holes");
+    registration::LandmarkPair p;
+    p.vertex = ia;
+    p.q = b.positions.row(ib).transpose();
+    if (r.domain == Domain::kDisk) p.q_on_boundary = bb[static_cast<size_t>(ib)];
+    p.name = std::to_string(k + 1) + " (" + std::to_string(sa) + " -> " + std::to_string(sb) + ")";
+    out.push_back(std::move(p));
+  }
+  return out;
+}
+
+// The bary of surface face `sf` of map `m` re-expressed on the cleaned mesh's face.
+std::pair<int, Eigen::Vector3d> on_cleaned(const MapOutcome& m, const mesh::CleanMesh& cm, int sf,
+                                           const Eigen::Vector3d& bary) {
+  const int c = m.face_origin[static_cast<size_t>(sf)];
+  Eigen::Vector3d out = Eigen::Vector3d::Zero();
+  for (int k = 0; k < 3; ++k) {
+    const int input = m.vertex_origin[static_cast<size_t>(m.surface.F(sf, k))];
+    for (int j = 0; j < 3; ++j)
+      if (cm.vertex_origin[static_cast<size_t>(cm.mesh.F(c, j))] == input) out[j] += bary[k];
+  }
+  return {c, out};
+}
+
+CorrespondenceRow row_at(const mesh::CleanMesh& tgt, int source_input, int cleaned_face, const Eigen::Vector3d& bary) {
+  CorrespondenceRow row;
+  row.source_vertex = source_input;
+  row.target_face = tgt.face_origin[static_cast<size_t>(cleaned_face)];
+  row.bary = bary;
+  for (int j = 0; j < 3; ++j) {
+    const int v = tgt.mesh.F(cleaned_face, j);
+    row.target_vertices[static_cast<size_t>(j)] = tgt.vertex_origin[static_cast<size_t>(v)];
+    row.position += bary[j] * tgt.mesh.V.row(v).transpose();
+  }
+  return row;
+}
+
+int domain_folds(const mesh::TriMesh& m, const mesh::Vertices& X, bool sphere) {
+  int n = 0;
+  for (int f = 0; f < m.num_faces(); ++f) n += conformal::face_folded(m, X, f, sphere);
+  return n;
+}
+
+}  // namespace
+
+RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMesh& target, const std::string& source_what,
+                             const std::string& target_what, const RegisterRequest& r, int threads,
+                             const ProgressSink& progress) {
+  r.validate();
+  mesh::require_valid(source, source_what);
+  mesh::require_valid(target, target_what);
+  const mesh::Topology ts = mesh::compute_topology(source.mesh), tt = mesh::compute_topology(target.mesh);
+  if (ts.mesh_class != tt.mesh_class || ts.genus != tt.genus || ts.boundary_loops != tt.boundary_loops)
+    invalid("the source is a " + std::string(mesh::class_name(ts.mesh_class)) + " (genus " + std::to_string(ts.genus) + ", " +
+            std::to_string(ts.boundary_loops) + " boundary loops) and the target a " + mesh::class_name(tt.mesh_class) +
+            " (genus " + std::to_string(tt.genus) + ", " + std::to_string(tt.boundary_loops) +
+            " boundary loops): meshes of different topology cannot be registered");
+  check_landmarks(r.source_landmarks, source, source_what);
+  check_landmarks(r.target_landmarks, target, target_what);
+  const bool sphere = r.domain == Domain::kSphere;
+
+  const auto t0 = std::chrono::steady_clock::now();
+  MapRequest mr;
+  mr.domain = r.domain;
+  mr.method = r.method;
+  mr.cut_hole = r.cut_hole;
+  mr.tolerance = r.tolerance;
+  mr.max_iterations = r.max_iterations;
+  MapRequest ms = mr, mt = mr;
+  if (r.cut_hole && !r.source_landmarks.empty()) {
+    ms.hole_vertex = r.source_landmarks[0];
+    mt.hole_vertex = r.target_landmarks[0];
+  }
+  std::mutex m;
+  MapOutcome a, b;
+  if (threads > 1) {
+    auto fa = std::async(std::launch::async, [&] { return run_map(source, source_what, ms, share(progress, m, "source", 0, 0.45)); });
+    b = run_map(target, target_what, mt, share(progress, m, "target", 0.45, 0.9));
+    a = fa.get();
+  } else {
+    a = run_map(source, source_what, ms, share(progress, m, "source", 0, 0.45));
+    b = run_map(target, target_what, mt, share(progress, m, "target", 0.45, 0.9));
+  }
+  const double t_maps = seconds_since(t0);
+  if (progress && !progress(Progress{"match", 0.9, 0, 0})) fail(ErrorCode::kCancelled, "cancelled");
+
+  const auto t1 = std::chrono::steady_clock::now();
+  const auto pairs = domain_landmarks(r, a, b, source.input_vertices, target.input_vertices);
+  const registration::DomainMatch g =
+      sphere ? registration::match_spheres(a.positions, a.surface.F, pairs)
+             : registration::match_disks(a.positions, a.surface.F, pairs);
+  const int folds = domain_folds(a.surface, g.mapped, sphere);
+  const auto at = registration::locate(b.surface.F, b.positions, g.mapped, sphere);
+  const double t_match = seconds_since(t1);
+
+  RegisterOutcome out;
+  // Rows in the cleaned source's order; the cut vertex goes onto the target's cut vertex.
+  const std::vector<int> surface_of = inverse(a.vertex_origin, source.input_vertices);
+  out.target_mesh = target.mesh;
+  out.morph.F = source.mesh.F;
+  out.morph.V.resize(source.mesh.num_vertices(), 3);
+  for (int j = 0; j < source.mesh.num_vertices(); ++j) {
+    const int input = source.vertex_origin[static_cast<size_t>(j)];
+    const int i = surface_of[static_cast<size_t>(input)];
+    std::pair<int, Eigen::Vector3d> c{-1, Eigen::Vector3d::Zero()};
+    if (i >= 0) {
+      c = on_cleaned(b, target, at[static_cast<size_t>(i)].face, at[static_cast<size_t>(i)].bary);
+    } else {  // the source's cut vertex
+      const std::vector<int> tcl = inverse(target.vertex_origin, target.input_vertices);
+      const int hole = tcl[static_cast<size_t>(b.cut_vertex)];
+      for (int f = 0; f < target.mesh.num_faces() && c.second.sum() == 0; ++f)
+        for (int k = 0; k < 3; ++k)
+          if (target.mesh.F(f, k) == hole) c = {f, Eigen::Vector3d::Unit(k)};
+      if (c.first < 0) fail(ErrorCode::kInternal, "the target's cut vertex has no face");
+    }
+    out.rows.push_back(row_at(target, input, c.first, c.second));
+    out.target_points.push_back(c);
+    out.morph.V.row(j) = out.rows.back().position.transpose();
+  }
+  const int morph_flips = registration::flipped_morph_faces(out.morph.F, out.morph.V, target.mesh);
+
+  nlohmann::json& j = out.report;
+  j["domain"] = domain_name(r.domain);
+  j["method"] = map_method_name(r.method);
+  j["landmarks"] = r.source_landmarks.size();
+  j["source"] = a.report;
+  j["target"] = b.report;
+  j["match"] = {{"rotation_rad", g.rotation_angle}, {"steps", g.steps}, {"max_landmark_error", g.max_landmark_error}};
+  j["domain_folded_faces"] = folds;
+  j["morph_flipped_faces"] = morph_flips;
+  j["seconds"] = {{"maps", t_maps}, {"match", t_match}};
+  return out;
+}
+
+std::string correspondence_csv(const RegisterOutcome& r) {
+  std::ostringstream o;
+  o << "source_vertex,target_face,target_v0,target_v1,target_v2,b0,b1,b2,x,y,z\n";
+  char buf[512];
+  for (const auto& row : r.rows) {
+    std::snprintf(buf, sizeof buf, "%d,%lld,%d,%d,%d,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g\n", row.source_vertex,
+                  static_cast<long long>(row.target_face), row.target_vertices[0], row.target_vertices[1],
+                  row.target_vertices[2], row.bary[0], row.bary[1], row.bary[2], row.position[0], row.position[1],
+                  row.position[2]);
+    o << buf;
+  }
+  return o.str();
+}
+
+}  // namespace brenier::jobs

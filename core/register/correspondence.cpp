@@ -1,0 +1,105 @@
+// Locating domain points in the target's domain mesh (Alg. 7 step 3) with CGAL's AABB tree.
+#include "register/correspondence.hpp"
+
+#include <CGAL/AABB_traits.h>
+#include <CGAL/AABB_tree.h>
+#include <CGAL/AABB_triangle_primitive.h>
+#include <CGAL/Simple_cartesian.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+
+namespace brenier::registration {
+
+namespace {
+
+using K = CGAL::Simple_cartesian<double>;
+using Triangle = K::Triangle_3;
+using Iterator = std::vector<Triangle>::const_iterator;
+using Primitive = CGAL::AABB_triangle_primitive<K, Iterator>;
+using Tree = CGAL::AABB_tree<CGAL::AABB_traits<K, Primitive>>;
+
+K::Point_3 point(const Eigen::Vector3d& x) { return {x.x(), x.y(), x.z()}; }
+Eigen::Vector3d vec(const K::Point_3& p) { return {p.x(), p.y(), p.z()}; }
+
+// Barycentric coordinates of x (in or near the plane of a, b, c), clamped into the triangle.
+Eigen::Vector3d barycentric(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+                            const Eigen::Vector3d& x) {
+  const Eigen::Vector3d n = (b - a).cross(c - a);
+  const double nn = n.squaredNorm();
+  if (!(nn > 0)) return {1, 0, 0};
+  Eigen::Vector3d w((c - b).cross(x - b).dot(n) / nn, (a - c).cross(x - c).dot(n) / nn, 0);
+  w.z() = 1 - w.x() - w.y();
+  w = w.cwiseMax(0.0);
+  const double s = w.sum();
+  return s > 0 ? Eigen::Vector3d(w / s) : Eigen::Vector3d(1, 0, 0);
+}
+
+}  // namespace
+
+std::vector<SurfacePoint> locate(const mesh::Faces& F, const mesh::Vertices& domain, const mesh::Vertices& points,
+                                 bool sphere) {
+  std::vector<Triangle> tris;
+  tris.reserve(static_cast<size_t>(F.rows()));
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    tris.emplace_back(point(domain.row(F(f, 0)).transpose()), point(domain.row(F(f, 1)).transpose()),
+                      point(domain.row(F(f, 2)).transpose()));
+  Tree tree(tris.cbegin(), tris.cend());
+  tree.build();
+  tree.accelerate_distance_queries();
+  std::vector<SurfacePoint> out(static_cast<size_t>(points.rows()));
+  // The tree's queries are const; each thread asks its own.
+#pragma omp parallel for schedule(dynamic, 256)
+  for (Eigen::Index i = 0; i < points.rows(); ++i) {
+    const Eigen::Vector3d x = points.row(i).transpose();
+    int face = -1;
+    Eigen::Vector3d at = x;
+    if (sphere) {
+      const K::Ray_3 ray(K::Point_3(0, 0, 0), point(x));
+      if (auto hit = tree.first_intersection(ray)) {
+        if (const K::Point_3* p = boost::get<K::Point_3>(&hit->first)) {
+          face = static_cast<int>(hit->second - tris.cbegin());
+          at = vec(*p);
+        }
+      }
+    }
+    if (face < 0) {
+      const auto hit = tree.closest_point_and_primitive(point(x));
+      face = static_cast<int>(hit.second - tris.cbegin());
+      at = vec(hit.first);
+    }
+    SurfacePoint& sp = out[static_cast<size_t>(i)];
+    sp.face = face;
+    sp.bary = barycentric(domain.row(F(face, 0)).transpose(), domain.row(F(face, 1)).transpose(),
+                          domain.row(F(face, 2)).transpose(), at);
+  }
+  return out;
+}
+
+mesh::Vertices positions(const mesh::TriMesh& mesh, const std::vector<SurfacePoint>& points) {
+  mesh::Vertices X(static_cast<Eigen::Index>(points.size()), 3);
+  for (size_t i = 0; i < points.size(); ++i) {
+    const auto& p = points[i];
+    X.row(static_cast<Eigen::Index>(i)) = p.bary[0] * mesh.V.row(mesh.F(p.face, 0)) + p.bary[1] * mesh.V.row(mesh.F(p.face, 1)) +
+                                          p.bary[2] * mesh.V.row(mesh.F(p.face, 2));
+  }
+  return X;
+}
+
+int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const mesh::TriMesh& target) {
+  mesh::Vertices centroids(F.rows(), 3);
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    centroids.row(f) = (morph.row(F(f, 0)) + morph.row(F(f, 1)) + morph.row(F(f, 2))) / 3;
+  const std::vector<SurfacePoint> near = locate(target.F, target.V, centroids, false);
+  int flipped = 0;
+  for (Eigen::Index f = 0; f < F.rows(); ++f) {
+    const Eigen::Vector3d a = morph.row(F(f, 0)), b = morph.row(F(f, 1)), c = morph.row(F(f, 2));
+    const int t = near[static_cast<size_t>(f)].face;
+    const Eigen::Vector3d ta = target.V.row(target.F(t, 0)), tb = target.V.row(target.F(t, 1)), tc = target.V.row(target.F(t, 2));
+    // Faces collapsed onto a point or a line (zero normal) are not counted.
+    if ((b - a).cross(c - a).dot((tb - ta).cross(tc - ta)) < 0) ++flipped;
+  }
+  return flipped;
+}
+
+}  // namespace brenier::registration

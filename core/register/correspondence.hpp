@@ -1,0 +1,35 @@
+// Step 3 of Alg. 7 (dissertation sec. 4.3): f = phi2^-1 o g o phi1. Once g has carried the
+// source's domain points onto the target's domain, each is located in the target's domain
+// mesh (the image of the target's triangles under phi2, which is a bijection onto the disk or
+// the sphere), and its barycentric coordinates there place it on the target surface.
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "mesh/mesh.hpp"
+
+namespace brenier::registration {
+
+/// A point of a triangle mesh: its face and barycentric coordinates (>= 0, summing to 1).
+struct SurfacePoint {
+  int face = -1;
+  Eigen::Vector3d bary = Eigen::Vector3d(1, 0, 0);
+};
+
+/// Locates each row of `points` in the domain mesh (F over `domain`: planar with z = 0, or on
+/// the unit sphere): on the plane the triangle holding it, on the sphere the chord triangle
+/// the ray from the centre through it crosses; a point in no triangle (outside the inscribed
+/// polygon of the disk, by round-off on the sphere) gets the nearest point of the mesh.
+std::vector<SurfacePoint> locate(const mesh::Faces& F, const mesh::Vertices& domain, const mesh::Vertices& points,
+                                 bool sphere);
+
+/// The positions of surface points on a mesh: sum_i bary_i V[F(face, i)].
+mesh::Vertices positions(const mesh::TriMesh& mesh, const std::vector<SurfacePoint>& points);
+
+/// Faces of a morph (the source's faces over the positions `morph` on the target surface)
+/// whose normal points against the target's at the point of the target nearest the face's
+/// centroid: where a registration folds on the surface.
+int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const mesh::TriMesh& target);
+
+}  // namespace brenier::registration

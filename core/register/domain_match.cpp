@@ -1,0 +1,429 @@
+// The bijection g between parameter domains (Alg. 7 step 2) by continuation of constrained
+// harmonic maps; see domain_match.hpp for the construction.
+#include "register/domain_match.hpp"
+
+#include <Eigen/Geometry>
+#include <Eigen/SVD>
+#include <Eigen/SparseCore>
+#include <Eigen/SparseLU>
+#include <algorithm>
+#include <cmath>
+#include <complex>
+#include <functional>
+
+#include "common/error.hpp"
+
+namespace brenier::registration {
+
+namespace {
+
+using V2 = Eigen::Vector2d;
+constexpr double kTwoPi = 2 * M_PI;
+
+double cross(const V2& a, const V2& b) { return a.x() * b.y() - a.y() * b.x(); }
+
+// Angle wrapped into (-pi, pi].
+double wrap_pi(double a) {
+  a = std::fmod(a + M_PI, kTwoPi);
+  if (a < 0) a += kTwoPi;
+  return a - M_PI;
+}
+
+// A monotone piecewise-linear map of the circle's angle through (source, target) knots,
+// increasing, covering one turn from knots[0].first; no knots: the identity.
+struct CircleMap {
+  std::vector<std::pair<double, double>> knots;
+  double operator()(double x) const {
+    if (knots.empty()) return x;
+    const double x0 = knots[0].first;
+    const double xr = x0 + std::fmod(std::fmod(x - x0, kTwoPi) + kTwoPi, kTwoPi);
+    for (size_t i = 0; i < knots.size(); ++i) {
+      const auto& a = knots[i];
+      const std::pair<double, double> b =
+          i + 1 < knots.size() ? knots[i + 1] : std::make_pair(knots[0].first + kTwoPi, knots[0].second + kTwoPi);
+      if (xr <= b.first) {
+        const double f = (xr - a.first) / std::max(1e-300, b.first - a.first);
+        return a.second + f * (b.second - a.second) - (xr - x);
+      }
+    }
+    return x;
+  }
+};
+
+// The continuation of harmonic maps on a planar mesh: `moving` vertices follow `path`
+// (landmarks and, on the disk, the boundary), the other fixed ones stay, the free ones are
+// the discrete harmonic map of each step with the mean value weights of the last.
+struct Continuation {
+  const mesh::Faces& F;
+  std::vector<V2> X;
+  std::vector<char> fixed;     // Dirichlet vertices
+  std::vector<char> skip_face; // faces left out of the fold check (a corner at the pole)
+  std::vector<int> moving;     // fixed vertices that move with t
+  std::function<V2(int v, double t)> path;
+  std::vector<int> landmark_vertex;  // the interior landmarks' vertices
+  std::vector<std::string> landmark_name;
+  std::vector<char> skip_vertex;     // never moved (the pole)
+  double radius = 1;                 // the spline steps vanish on and beyond this circle
+  bool squared_cut = false;
+
+  double sign(const std::vector<V2>& Y, Eigen::Index f) const {
+    const V2 &a = Y[static_cast<size_t>(F(f, 0))], &b = Y[static_cast<size_t>(F(f, 1))], &c = Y[static_cast<size_t>(F(f, 2))];
+    return cross(b - a, c - a);
+  }
+
+  // The harmonic map with the fixed vertices at Y's places, weights from X. False when the
+  // solve fails.
+  bool harmonic(std::vector<V2>& Y) const {
+    const size_t n = X.size();
+    std::vector<int> index(n, -1);
+    int m = 0;
+    for (size_t v = 0; v < n; ++v)
+      if (!fixed[v]) index[v] = m++;
+    if (m == 0) return true;
+    std::vector<Eigen::Triplet<double>> trip;
+    Eigen::MatrixX2d rhs = Eigen::MatrixX2d::Zero(m, 2);
+    Eigen::VectorXd diag = Eigen::VectorXd::Zero(m);
+    for (Eigen::Index f = 0; f < F.rows(); ++f) {
+      for (int k = 0; k < 3; ++k) {
+        const int i = F(f, k), j = F(f, (k + 1) % 3), l = F(f, (k + 2) % 3);
+        if (index[static_cast<size_t>(i)] < 0) continue;
+        const V2 e1 = X[static_cast<size_t>(j)] - X[static_cast<size_t>(i)], e2 = X[static_cast<size_t>(l)] - X[static_cast<size_t>(i)];
+        const double angle = std::atan2(std::abs(cross(e1, e2)), e1.dot(e2));
+        const double tn = std::tan(angle / 2);
+        for (const auto& [o, len] : {std::make_pair(j, e1.norm()), std::make_pair(l, e2.norm())}) {
+          const double w = tn / std::max(len, 1e-300);
+          const int row = index[static_cast<size_t>(i)], col = index[static_cast<size_t>(o)];
+          diag[row] += w;
+          if (col >= 0) trip.emplace_back(row, col, -w);
+          else rhs.row(row) += w * Y[static_cast<size_t>(o)].transpose();
+        }
+      }
+    }
+    for (int r = 0; r < m; ++r) trip.emplace_back(r, r, diag[r]);
+    Eigen::SparseMatrix<double> A(m, m);
+    A.setFromTriplets(trip.begin(), trip.end());
+    Eigen::SparseLU<Eigen::SparseMatrix<double>> lu;
+    lu.compute(A);
+    if (lu.info() != Eigen::Success) return false;
+    const Eigen::MatrixX2d x = lu.solve(rhs);
+    if (lu.info() != Eigen::Success || !x.allFinite()) return false;
+    for (size_t v = 0; v < n; ++v)
+      if (index[v] >= 0) Y[v] = x.row(index[v]).transpose();
+    return true;
+  }
+
+  [[noreturn]] void refuse(Eigen::Index bad_face) const {
+    if (landmark_vertex.size() < 2)
+      invalid("landmark " + (landmark_name.empty() ? std::string("?") : landmark_name[0]) +
+              " cannot be moved onto its target without folding the mesh");
+    const V2 y = bad_face >= 0 ? X[static_cast<size_t>(F(bad_face, 0))] : V2::Zero();
+    std::vector<size_t> order(landmark_vertex.size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+      return (X[static_cast<size_t>(landmark_vertex[a])] - y).norm() < (X[static_cast<size_t>(landmark_vertex[b])] - y).norm();
+    });
+    invalid("landmarks " + landmark_name[order[0]] + " and " + landmark_name[order[1]] +
+            " cannot be matched without folding the mesh between them (they pass each other or move too far for "
+            "the mesh's resolution); drop or move one of them");
+  }
+
+  // The landmarks' current places.
+  std::vector<V2> landmark_places(const std::vector<V2>& Y) const {
+    std::vector<V2> c;
+    for (int v : landmark_vertex) c.push_back(Y[static_cast<size_t>(v)]);
+    return c;
+  }
+
+  // One step of the interior landmarks from their places in X to `goal`: the displacement
+  // d(x) = cut(x) s(x), s the thin-plate spline (r^2 log r plus an affine part) through the
+  // landmarks' displacements over cut, cut = 1 - |x|^2 / radius^2 (squared on the sphere's
+  // plane for a C1 join) vanishing on the circle: smooth, exact at the landmarks, zero on and
+  // beyond the circle.
+  void spline_step(const std::vector<V2>& goal, std::vector<V2>& Y) const {
+    const std::vector<V2> c = landmark_places(X);
+    const size_t L = c.size();
+    auto cut = [&](const V2& x) {
+      const double u = 1 - x.squaredNorm() / (radius * radius);
+      if (u <= 0) return 0.0;
+      return squared_cut ? u * u : u;
+    };
+    auto phi = [](double r) { return r > 0 ? r * r * std::log(r) : 0.0; };
+    Eigen::MatrixXd A = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(L + 3), static_cast<Eigen::Index>(L + 3));
+    Eigen::MatrixX2d b = Eigen::MatrixX2d::Zero(static_cast<Eigen::Index>(L + 3), 2);
+    for (size_t i = 0; i < L; ++i) {
+      for (size_t j = 0; j < L; ++j) A(static_cast<Eigen::Index>(i), static_cast<Eigen::Index>(j)) = phi((c[i] - c[j]).norm());
+      const auto r = static_cast<Eigen::Index>(i), e = static_cast<Eigen::Index>(L);
+      A(r, e) = A(e, r) = 1;
+      A(r, e + 1) = A(e + 1, r) = c[i].x();
+      A(r, e + 2) = A(e + 2, r) = c[i].y();
+      b.row(r) = ((goal[i] - c[i]) / cut(c[i])).transpose();
+    }
+    const Eigen::MatrixX2d w = A.fullPivLu().solve(b);
+    Y = X;
+#pragma omp parallel for schedule(static)
+    for (long v = 0; v < static_cast<long>(X.size()); ++v) {
+      const V2 x = X[static_cast<size_t>(v)];
+      const double k = cut(x);
+      if (k <= 0 || skip_vertex[static_cast<size_t>(v)]) continue;
+      V2 s = w.row(static_cast<Eigen::Index>(L)).transpose() + w(static_cast<Eigen::Index>(L + 1), 0) * V2(x.x(), 0) +
+             w(static_cast<Eigen::Index>(L + 1), 1) * V2(0, x.x()) + w(static_cast<Eigen::Index>(L + 2), 0) * V2(x.y(), 0) +
+             w(static_cast<Eigen::Index>(L + 2), 1) * V2(0, x.y());
+      for (size_t i = 0; i < L; ++i) s += phi((x - c[i]).norm()) * w.row(static_cast<Eigen::Index>(i)).transpose();
+      Y[static_cast<size_t>(v)] = x + k * s;
+    }
+    for (size_t i = 0; i < L; ++i) Y[static_cast<size_t>(landmark_vertex[i])] = goal[i];  // exact
+  }
+
+  Eigen::Index first_fold(const std::vector<double>& sign0, const std::vector<V2>& Y) const {
+    for (Eigen::Index f = 0; f < F.rows(); ++f) {
+      const double s0 = sign0[static_cast<size_t>(f)];
+      if (s0 != 0 && !(s0 * sign(Y, f) > 0)) return f;
+    }
+    return -1;
+  }
+
+  // Moves the boundary (`moving_boundary`, to path(v, 1)) with the interior following as a
+  // Tutte embedding with the mesh's mean value weights (Floater: no fold, the boundary being
+  // convex), then the interior landmarks from their places to `targets` by spline steps,
+  // halved until no face folds. Returns the steps taken.
+  int run(const std::vector<V2>& targets) {
+    std::vector<double> sign0(static_cast<size_t>(F.rows()));
+    for (Eigen::Index f = 0; f < F.rows(); ++f) sign0[static_cast<size_t>(f)] = skip_face[static_cast<size_t>(f)] ? 0 : sign(X, f);
+    int steps = 0;
+    if (!moving.empty()) {
+      std::vector<V2> Y = X;
+      for (int v : moving) Y[static_cast<size_t>(v)] = path(v, 1);
+      if (!harmonic(Y) || first_fold(sign0, Y) >= 0)
+        fail(ErrorCode::kInternal, "the boundary landmarks' Tutte step folded the mesh");
+      X.swap(Y);
+      ++steps;
+    }
+    if (landmark_vertex.empty()) return steps;
+    const std::vector<V2> start = landmark_places(X);
+    double t = 0, dt = 1;
+    std::vector<V2> Y, goal(start.size());
+    while (t < 1) {
+      const double t1 = std::min(1.0, t + dt);
+      for (size_t i = 0; i < start.size(); ++i) goal[i] = (1 - t1) * start[i] + t1 * targets[i];
+      spline_step(goal, Y);
+      const Eigen::Index bad = first_fold(sign0, Y);
+      if (bad < 0) {
+        X.swap(Y);
+        t = t1;
+        ++steps;
+        dt = std::min(1.0, 2 * dt);
+        continue;
+      }
+      dt /= 2;
+      if (dt < 1e-6) refuse(bad);
+    }
+    return steps;
+  }
+};
+
+void check_distinct(const std::vector<LandmarkPair>& l, double eps) {
+  for (size_t i = 0; i < l.size(); ++i)
+    for (size_t j = i + 1; j < l.size(); ++j) {
+      if (l[i].vertex == l[j].vertex)
+        invalid("landmarks " + l[i].name + " and " + l[j].name + " are at one place on the source");
+      if ((l[i].q - l[j].q).norm() <= eps)
+        invalid("landmarks " + l[i].name + " and " + l[j].name + " are at one place on the target");
+    }
+}
+
+std::vector<char> boundary_of(const mesh::Faces& F, Eigen::Index n) {
+  // An edge used once is a boundary edge.
+  std::vector<std::pair<int, int>> edges;
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    for (int k = 0; k < 3; ++k) {
+      const int a = F(f, k), b = F(f, (k + 1) % 3);
+      edges.emplace_back(std::min(a, b), std::max(a, b));
+    }
+  std::sort(edges.begin(), edges.end());
+  std::vector<char> out(static_cast<size_t>(n), 0);
+  for (size_t i = 0; i < edges.size();) {
+    size_t j = i;
+    while (j < edges.size() && edges[j] == edges[i]) ++j;
+    if (j - i == 1) out[static_cast<size_t>(edges[i].first)] = out[static_cast<size_t>(edges[i].second)] = 1;
+    i = j;
+  }
+  return out;
+}
+
+void check_vertices(const std::vector<LandmarkPair>& l, Eigen::Index n) {
+  for (const auto& x : l)
+    if (x.vertex < 0 || x.vertex >= n) invalid("landmark " + x.name + " is not a vertex of the source's domain mesh");
+}
+
+}  // namespace
+
+DomainMatch match_disks(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks) {
+  check_vertices(landmarks, points.rows());
+  check_distinct(landmarks, 1e-12);
+  const std::vector<char> boundary = boundary_of(faces, points.rows());
+  DomainMatch out;
+  // The least-squares turn: the angle of sum conj(p_k) q_k.
+  std::complex<double> sum = 0;
+  for (const auto& l : landmarks)
+    sum += std::conj(std::complex<double>(points(l.vertex, 0), points(l.vertex, 1))) * std::complex<double>(l.q.x(), l.q.y());
+  const double theta = std::abs(sum) > 1e-12 ? std::arg(sum) : 0.0;
+  out.rotation_angle = theta;
+  const Eigen::Rotation2Dd turn(theta);
+
+  Continuation c{faces, {}, {}, {}, {}, {}, {}, {}, {}, 1.0, false};
+  c.X.resize(static_cast<size_t>(points.rows()));
+  c.skip_vertex.assign(static_cast<size_t>(points.rows()), 0);
+  for (Eigen::Index i = 0; i < points.rows(); ++i) c.X[static_cast<size_t>(i)] = turn * V2(points(i, 0), points(i, 1));
+  c.fixed = boundary;
+  c.skip_face.assign(static_cast<size_t>(faces.rows()), 0);
+
+  std::vector<std::pair<double, double>> knots;
+  std::string boundary_names;
+  std::vector<V2> from(static_cast<size_t>(points.rows())), targets;
+  for (const auto& l : landmarks) {
+    const bool pb = boundary[static_cast<size_t>(l.vertex)];
+    if (pb != l.q_on_boundary)
+      invalid("landmark " + l.name + " lies on the " + (pb ? "source's boundary and inside the target" : "target's boundary and inside the source") +
+              ": a homeomorphism of the disk keeps the boundary on the boundary");
+    const V2 p = c.X[static_cast<size_t>(l.vertex)], q = l.q.head<2>();
+    if (pb) {
+      knots.emplace_back(std::atan2(p.y(), p.x()), std::atan2(q.y(), q.x()));
+      boundary_names += (boundary_names.empty() ? "" : ", ") + l.name;
+      continue;
+    }
+    if (q.norm() >= 1 - 1e-12) invalid("landmark " + l.name + " is an interior vertex mapped onto the disk's boundary");
+    targets.push_back(q);
+    c.landmark_vertex.push_back(l.vertex);
+    c.landmark_name.push_back(l.name);
+  }
+  // Boundary landmarks: psi through the knots, which must keep their order around the circle.
+  CircleMap psi;
+  if (!knots.empty()) {
+    std::sort(knots.begin(), knots.end());
+    double total = 0;
+    psi.knots.emplace_back(knots[0].first, knots[0].first + wrap_pi(knots[0].second - knots[0].first));
+    for (size_t i = 1; i <= knots.size(); ++i) {
+      double d = std::fmod(knots[i % knots.size()].second - knots[i - 1].second, kTwoPi);
+      if (d <= 0) d += kTwoPi;
+      total += d;
+      if (i < knots.size()) psi.knots.emplace_back(knots[i].first, psi.knots.back().second + d);
+    }
+    if (knots.size() > 1 && std::abs(total - kTwoPi) > 1e-6)
+      invalid("boundary landmarks " + boundary_names +
+              " lie in a different order around the target's boundary than around the source's: no homeomorphism of "
+              "the disk matches them");
+    for (Eigen::Index v = 0; v < points.rows(); ++v)
+      if (boundary[static_cast<size_t>(v)]) {
+        const V2 x = c.X[static_cast<size_t>(v)];
+        const double a = std::atan2(x.y(), x.x());
+        from[static_cast<size_t>(v)] = V2(a, psi(a));  // angles at t = 0 and 1
+        c.moving.push_back(static_cast<int>(v));
+      }
+  }
+  c.path = [&](int v, double t) {
+    const V2 ang = from[static_cast<size_t>(v)];
+    const double a = ang.x() + t * (ang.y() - ang.x()), r = c.X[static_cast<size_t>(v)].norm();
+    return V2(r * std::cos(a), r * std::sin(a));
+  };
+  out.steps = c.run(targets);
+  out.mapped = mesh::Vertices::Zero(points.rows(), 3);
+  for (Eigen::Index i = 0; i < points.rows(); ++i) out.mapped.row(i).head<2>() = c.X[static_cast<size_t>(i)].transpose();
+  for (const auto& l : landmarks)
+    out.max_landmark_error = std::max(out.max_landmark_error, (out.mapped.row(l.vertex).transpose() - Eigen::Vector3d(l.q.x(), l.q.y(), 0)).norm());
+  return out;
+}
+
+namespace {
+
+// The rotation taking the p's nearest the q's (Kabsch): for one landmark the shortest turn.
+Eigen::Matrix3d kabsch(const std::vector<Eigen::Vector3d>& p, const std::vector<Eigen::Vector3d>& q) {
+  if (p.empty()) return Eigen::Matrix3d::Identity();
+  if (p.size() == 1) return Eigen::Quaterniond::FromTwoVectors(p[0], q[0]).toRotationMatrix();
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  for (size_t i = 0; i < p.size(); ++i) H += p[i] * q[i].transpose();
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() < 0 ? -1 : 1;
+  return svd.matrixV() * D * svd.matrixU().transpose();
+}
+
+// A direction far from every point (the largest smallest angle among 4,000 spiral samples).
+Eigen::Vector3d far_direction(const std::vector<Eigen::Vector3d>& pts) {
+  const int n = 4000;
+  Eigen::Vector3d best = Eigen::Vector3d::UnitZ();
+  double best_d = -2;
+  for (int i = 0; i < n; ++i) {
+    const double z = 1 - (2 * i + 1.0) / n, r = std::sqrt(1 - z * z), ph = i * M_PI * (3 - std::sqrt(5.0));
+    const Eigen::Vector3d d(r * std::cos(ph), r * std::sin(ph), z);
+    double nearest = 2;
+    for (const auto& p : pts) nearest = std::min(nearest, 1 - d.dot(p));
+    if (nearest > best_d) best_d = nearest, best = d;
+  }
+  return best;
+}
+
+V2 stereo(const Eigen::Vector3d& x) { return x.head<2>() / (1 - x.z()); }
+Eigen::Vector3d unstereo(const V2& y) {
+  const double s = y.squaredNorm();
+  return Eigen::Vector3d(2 * y.x(), 2 * y.y(), s - 1) / (s + 1);
+}
+
+}  // namespace
+
+DomainMatch match_spheres(const mesh::Vertices& points, const mesh::Faces& faces,
+                          const std::vector<LandmarkPair>& landmarks) {
+  check_vertices(landmarks, points.rows());
+  check_distinct(landmarks, 1e-12);
+  DomainMatch out;
+  std::vector<Eigen::Vector3d> p, q;
+  for (const auto& l : landmarks) {
+    p.push_back(points.row(l.vertex).transpose().normalized());
+    q.push_back(l.q.normalized());
+  }
+  const Eigen::Matrix3d R = kabsch(p, q);
+  out.rotation_angle = Eigen::AngleAxisd(R).angle();
+  out.mapped = points * R.transpose();
+  if (landmarks.size() >= 2) {
+    // The steps in the stereographic plane seen from a pole far from the landmarks.
+    std::vector<Eigen::Vector3d> seen;
+    for (size_t k = 0; k < p.size(); ++k) seen.push_back(R * p[k]), seen.push_back(q[k]);
+    const Eigen::Vector3d pole = far_direction(seen);
+    const Eigen::Matrix3d Q = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    const size_t n = static_cast<size_t>(points.rows());
+    Continuation c{faces, std::vector<V2>(n), std::vector<char>(n, 1), std::vector<char>(static_cast<size_t>(faces.rows()), 0),
+                   {}, {}, {}, {}, std::vector<char>(n, 0), 1.0, true};
+    std::vector<char> finite(n, 0);
+    std::vector<V2> targets;
+    double max_r = 0;
+    for (size_t k = 0; k < p.size(); ++k) {
+      const V2 from = stereo(Q * R * p[k]), to = stereo(Q * q[k]);
+      max_r = std::max({max_r, from.norm(), to.norm()});
+      targets.push_back(to);
+      c.landmark_vertex.push_back(landmarks[k].vertex);
+      c.landmark_name.push_back(landmarks[k].name);
+    }
+    // The steps vanish beyond a circle twice as wide as every landmark path.
+    c.radius = 2 * std::max(max_r, 1e-3);
+    for (size_t i = 0; i < n; ++i) {
+      const Eigen::Vector3d y = Q * out.mapped.row(static_cast<Eigen::Index>(i)).transpose();
+      if (1 - y.z() > 1e-9) {
+        c.X[i] = stereo(y);
+        finite[i] = 1;
+      } else {
+        c.skip_vertex[i] = 1;  // the pole: never moved
+      }
+    }
+    for (Eigen::Index f = 0; f < faces.rows(); ++f)
+      for (int k = 0; k < 3; ++k)
+        if (!finite[static_cast<size_t>(faces(f, k))]) c.skip_face[static_cast<size_t>(f)] = 1;
+    out.steps = c.run(targets);
+    for (size_t i = 0; i < n; ++i)
+      if (finite[i])
+        out.mapped.row(static_cast<Eigen::Index>(i)) = (Q.transpose() * unstereo(c.X[i])).transpose();
+  }
+  for (size_t k = 0; k < landmarks.size(); ++k)
+    out.max_landmark_error = std::max(out.max_landmark_error, (out.mapped.row(landmarks[k].vertex).transpose() - q[k]).norm());
+  return out;
+}
+
+}  // namespace brenier::registration

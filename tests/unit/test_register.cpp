@@ -1,0 +1,230 @@
+// Surface registration (Alg. 7): the domain bijection g hits every landmark and folds nothing,
+// even where landmarks must pass each other; the location of points in a domain mesh; the
+// whole registration of a surface onto a remeshed copy of itself (the analytic case: a flat
+// disk, whose maps are the identity up to a turn); and the refusals.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include "conformal/conformal_map.hpp"
+#include "expect_error.hpp"
+#include "jobs/jobs.hpp"
+#include "mesh/geometry.hpp"
+#include "mesh/shapes.hpp"
+#include "mesh/validate.hpp"
+#include "quality/quality.hpp"
+#include "register/correspondence.hpp"
+#include "register/domain_match.hpp"
+#include "register/evaluation.hpp"
+
+using namespace brenier;
+using namespace brenier::registration;
+
+namespace {
+
+int folds(const mesh::TriMesh& m, const mesh::Vertices& X, bool sphere) {
+  int n = 0;
+  for (int f = 0; f < m.num_faces(); ++f) n += conformal::face_folded(m, X, f, sphere);
+  return n;
+}
+
+// The vertex of the mesh nearest x.
+int vertex_at(const mesh::TriMesh& m, const Eigen::Vector3d& x) {
+  Eigen::Index v = 0;
+  (m.V.rowwise() - x.transpose()).rowwise().squaredNorm().minCoeff(&v);
+  return static_cast<int>(v);
+}
+
+LandmarkPair pair(const mesh::TriMesh& m, Eigen::Vector3d p, Eigen::Vector3d q, const std::string& name) {
+  LandmarkPair l;
+  l.vertex = vertex_at(m, p);
+  l.q = q;
+  l.name = name;
+  return l;
+}
+
+mesh::CleanMesh as_clean(const mesh::TriMesh& m) { return mesh::clean(m); }
+
+TEST(DomainMatch, WithoutLandmarksTheDiskIsLeftAlone) {
+  const mesh::TriMesh d = mesh::make_disk(8);
+  const DomainMatch g = match_disks(d.V, d.F, {});
+  EXPECT_EQ(g.steps, 0);
+  EXPECT_LT((g.mapped - d.V).norm(), 1e-15);
+}
+
+TEST(DomainMatch, OneTurnOfTheLandmarksIsARotation) {
+  // Landmarks turned by 0.7 rad: g is that rotation; the harmonic step with the mean value
+  // weights of the turned mesh reproduces it (they reproduce linear maps).
+  const mesh::TriMesh d = mesh::make_disk(10);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  std::vector<LandmarkPair> l;
+  for (int v : {5, 40, 77, 120}) l.push_back(pair(d, d.V.row(v).transpose(), R * d.V.row(v).transpose(), std::to_string(v)));
+  const DomainMatch g = match_disks(d.V, d.F, l);
+  EXPECT_NEAR(g.rotation_angle, 0.7, 1e-12);
+  EXPECT_LT((g.mapped - d.V * R.transpose()).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_LT(g.max_landmark_error, 1e-12);
+}
+
+TEST(DomainMatch, LandmarksTurnedAgainstTheirNeighboursAreMatchedWithoutFolds) {
+  // Two landmarks turn 1.2 rad about the centre while their neighbours above and below stay
+  // put, and a fifth moves toward the rim: the one-shot harmonic map is not needed to be
+  // unfolded, the continuation must come out unfolded with every landmark hit.
+  const mesh::TriMesh d = mesh::make_disk(24);
+  const double c = std::cos(1.2), s = std::sin(1.2);
+  std::vector<LandmarkPair> l = {pair(d, {0.3, 0, 0}, {0.3 * c, 0.3 * s, 0}, "a"), pair(d, {-0.3, 0, 0}, {-0.3 * c, -0.3 * s, 0}, "b"),
+                                 pair(d, {0, 0.6, 0}, {0, 0.6, 0}, "c"), pair(d, {0, -0.6, 0}, {0, -0.6, 0}, "d"),
+                                 pair(d, {0.5, 0.5, 0}, {0.2, 0.7, 0}, "e")};
+  const DomainMatch g = match_disks(d.V, d.F, l);
+  EXPECT_GE(g.steps, 1);
+  EXPECT_LT(g.max_landmark_error, 1e-9);
+  EXPECT_EQ(folds(d, g.mapped, false), 0);
+  // Still onto the disk: the boundary on the circle, the area of the image that of the disk.
+  for (int i = 0; i < d.num_vertices(); ++i) EXPECT_LE(g.mapped.row(i).norm(), 1 + 1e-12);
+  const Eigen::VectorXd a = mesh::face_areas(d.F, g.mapped);
+  EXPECT_NEAR(a.sum(), mesh::total_area(d), 1e-9);
+}
+
+TEST(DomainMatch, LandmarksThatSwapPlacesThroughOneAnotherAreRefusedByName) {
+  // Straight paths through each other squeeze the mesh between them flat: refused, naming
+  // both, rather than a folded map.
+  const mesh::TriMesh d = mesh::make_disk(24);
+  std::vector<LandmarkPair> l = {pair(d, {0.3, 0, 0}, {-0.3, 0.005, 0}, "a"), pair(d, {-0.3, 0, 0}, {0.3, -0.005, 0}, "b"),
+                                 pair(d, {0, 0.6, 0}, {0, 0.6, 0}, "c")};
+  EXPECT_ERROR(match_disks(d.V, d.F, l), ErrorCode::kInvalidArgument, "cannot be matched without folding the mesh");
+}
+
+TEST(DomainMatch, BoundaryLandmarksSlideAlongTheCircle) {
+  const mesh::TriMesh d = mesh::make_disk(16);
+  LandmarkPair b1 = pair(d, {1, 0, 0}, {std::cos(0.5), std::sin(0.5), 0}, "b1");
+  LandmarkPair b2 = pair(d, {-1, 0, 0}, {-1, 0, 0}, "b2");
+  b1.q_on_boundary = b2.q_on_boundary = true;
+  const DomainMatch g = match_disks(d.V, d.F, {b1, b2, pair(d, {0.1, 0.2, 0}, {-0.2, 0.1, 0}, "i")});
+  EXPECT_LT(g.max_landmark_error, 1e-9);
+  EXPECT_EQ(folds(d, g.mapped, false), 0);
+  for (int i = 0; i < d.num_vertices(); ++i) {
+    if (std::abs(d.V.row(i).norm() - 1) < 1e-12) {
+      EXPECT_NEAR(g.mapped.row(i).norm(), 1, 1e-12);
+    }
+  }
+}
+
+TEST(DomainMatch, LandmarksNoHomeomorphismMatchesAreRefusedByName) {
+  const mesh::TriMesh d = mesh::make_disk(4);
+  LandmarkPair b = pair(d, {1, 0, 0}, {0.5, 0, 0}, "7 (3 -> 9)");
+  EXPECT_ERROR(match_disks(d.V, d.F, {b}), ErrorCode::kInvalidArgument, "landmark 7 (3 -> 9) lies on the source's boundary");
+  EXPECT_ERROR(match_disks(d.V, d.F, {pair(d, {0, 0, 0}, {0.1, 0, 0}, "x"), pair(d, {0.5, 0, 0}, {0.1, 0, 0}, "y")}),
+               ErrorCode::kInvalidArgument, "landmarks x and y are at one place on the target");
+  // Three boundary landmarks in the opposite order around the circle.
+  std::vector<LandmarkPair> l;
+  for (int k = 0; k < 3; ++k) {
+    const double a = 2 * M_PI * k / 3;
+    LandmarkPair p = pair(d, {std::cos(a), std::sin(a), 0}, {std::cos(-a), std::sin(-a), 0}, "b" + std::to_string(k));
+    p.q_on_boundary = true;
+    l.push_back(p);
+  }
+  EXPECT_ERROR(match_disks(d.V, d.F, l), ErrorCode::kInvalidArgument, "in a different order around the target's boundary");
+}
+
+TEST(DomainMatch, SphereLandmarksAreHitWithoutFoldsAndTheSphereCoveredOnce) {
+  const mesh::TriMesh s = mesh::make_icosphere(4);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(1.1, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  std::vector<LandmarkPair> l;
+  int k = 0;
+  for (int v : {0, 1, 7, 50, 300, 1000}) {
+    Eigen::Vector3d q = R * s.V.row(v).transpose();
+    if (k % 2) q = (q + Eigen::Vector3d(0.15, -0.1, 0.05)).normalized();  // not a rigid motion
+    l.push_back(pair(s, s.V.row(v).transpose(), q, std::to_string(k++)));
+  }
+  const DomainMatch g = match_spheres(s.V, s.F, l);
+  EXPECT_GE(g.steps, 1);
+  EXPECT_LT(g.max_landmark_error, 1e-9);
+  EXPECT_EQ(folds(s, g.mapped, true), 0);
+  EXPECT_TRUE(quality::covers_once(quality::sphere_degree(s.F, g.mapped)));
+  for (int i = 0; i < s.num_vertices(); ++i) EXPECT_NEAR(g.mapped.row(i).norm(), 1, 1e-9);
+}
+
+TEST(Correspondence, LocatesPointsInThePlaneAndOnTheSphere) {
+  const mesh::TriMesh d = mesh::make_disk(6);
+  const auto at = locate(d.F, d.V, d.V, false);
+  EXPECT_LT((positions(d, at) - d.V).norm(), 1e-12);
+  const mesh::TriMesh s = mesh::make_icosphere(3);
+  mesh::Vertices P(50, 3);
+  for (int i = 0; i < 50; ++i) P.row(i) = Eigen::Vector3d(std::sin(i * 1.3), std::cos(i * 0.7), std::sin(i * 0.31 + 1)).normalized();
+  const auto on = locate(s.F, s.V, P, true);
+  // Each found point is the chord point under P: parallel to it.
+  const mesh::Vertices Q = positions(s, on);
+  for (int i = 0; i < 50; ++i) {
+    EXPECT_LT(Q.row(i).normalized().cross(P.row(i)).norm(), 1e-9);
+    EXPECT_GE(on[static_cast<size_t>(i)].bary.minCoeff(), 0);
+  }
+}
+
+TEST(Register, AFlatDiskOntoARemeshedCopyOfItselfErrsOnlyAtTheRemeshingsResolution) {
+  // The flat unit disk's conformal and area-preserving maps are the identity up to a turn,
+  // which the landmarks fix: every source vertex must land where it is, to the resolution
+  // of interpolating over the remeshed triangles (the plane: exact).
+  const mesh::TriMesh a = mesh::make_disk(12);
+  const mesh::TriMesh b = remesh(a, 1.3);
+  ASSERT_GT(b.num_vertices(), 50);
+  const auto near = nearest_points(b, a.V);
+  jobs::RegisterRequest r;
+  for (int v : spread_vertices(a.V, 5)) {
+    r.source_landmarks.push_back(v);
+    Eigen::Index j = 0;
+    (b.V.rowwise() - a.V.row(v)).rowwise().squaredNorm().minCoeff(&j);
+    r.target_landmarks.push_back(static_cast<int>(j));
+  }
+  for (jobs::MapMethod m : {jobs::MapMethod::kAreaPreserving, jobs::MapMethod::kConformal}) {
+    r.method = m;
+    const jobs::RegisterOutcome out = jobs::run_register(as_clean(a), as_clean(b), "a", "b", r);
+    ASSERT_EQ(out.rows.size(), static_cast<size_t>(a.num_vertices()));
+    double worst = 0;
+    for (int i = 0; i < a.num_vertices(); ++i) worst = std::max(worst, (out.morph.V.row(i) - a.V.row(i)).norm());
+    // A landmark pair is off by the distance between a vertex and the nearest remeshed one.
+    EXPECT_LT(worst, 0.12) << jobs::map_method_name(m);
+    EXPECT_EQ(out.report["domain_folded_faces"], 0);
+    EXPECT_EQ(out.report["morph_flipped_faces"], 0);
+    (void)near;
+  }
+}
+
+TEST(Register, RefusesMeshesOfDifferentTopologyAndBadLandmarks) {
+  const mesh::TriMesh disk = mesh::make_disk(5), sphere = mesh::make_icosphere(2);
+  jobs::RegisterRequest r;
+  EXPECT_ERROR(jobs::run_register(as_clean(disk), as_clean(sphere), "a.off", "b.off", r), ErrorCode::kInvalidArgument,
+               "meshes of different topology cannot be registered");
+  r.source_landmarks = {1, 2};
+  r.target_landmarks = {1};
+  EXPECT_ERROR(jobs::run_register(as_clean(disk), as_clean(disk), "a.off", "b.off", r), ErrorCode::kInvalidArgument,
+               "the source has 2 landmarks and the target 1");
+  r.target_landmarks = {1, 5000};
+  EXPECT_ERROR(jobs::run_register(as_clean(disk), as_clean(disk), "a.off", "b.off", r), ErrorCode::kInvalidArgument,
+               "b.off: landmark 2 is vertex 5000, but the mesh has 91 vertices");
+  r.target_landmarks = {3, 3};
+  EXPECT_ERROR(jobs::run_register(as_clean(disk), as_clean(disk), "a.off", "b.off", r), ErrorCode::kInvalidArgument,
+               "target landmarks 1 and 2 are the same vertex 3");
+}
+
+TEST(Register, LandmarksFilesAreReadWithLineNumbers) {
+  const std::string path = (std::filesystem::temp_directory_path() / "brenier-landmarks.txt").string();
+  std::ofstream(path) << "# nose\n12\n\n 7 \n";
+  EXPECT_EQ(jobs::read_landmarks_file(path), (std::vector<int>{12, 7}));
+  std::ofstream(path) << "12\nseven\n";
+  EXPECT_ERROR(jobs::read_landmarks_file(path), ErrorCode::kInvalidArgument, ":2: 'seven' is not a vertex number");
+  EXPECT_ERROR(jobs::read_landmarks_file(path + ".missing"), ErrorCode::kInvalidArgument, "cannot read the landmarks file");
+}
+
+TEST(Evaluation, GeodesicsOnAFlatGridAreStraightLines) {
+  const mesh::TriMesh g = mesh::make_grid(9);
+  const auto from = nearest_points(g, (mesh::Vertices(2, 3) << 0.1, 0.1, 0, 0.33, 0.71, 0).finished());
+  const auto to = nearest_points(g, (mesh::Vertices(2, 3) << 0.9, 0.8, 0, 0.35, 0.2, 0).finished());
+  const auto d = geodesic_distances(g, from, to);
+  EXPECT_NEAR(d[0], std::hypot(0.8, 0.7), 1e-9);
+  EXPECT_NEAR(d[1], std::hypot(0.02, 0.51), 1e-9);
+  const auto c = cumulative_curve({0.1, 0.2, 0.3, 0.4}, {0.05, 0.2, 1});
+  EXPECT_EQ(c, (std::vector<double>{0, 0.5, 1}));
+}
+
+}  // namespace
