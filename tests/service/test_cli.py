@@ -55,6 +55,23 @@ try:
     page = open(os.path.join(work, "report.html"), encoding="utf-8").read() if rc == 0 else ""
     check(page.startswith("<!DOCTYPE html>") and 'id="mesh-data"' in page and "OrbitControls" in page,
           f"the map's report.html, with its 3-D view inlined: {rc} {err!r}")
+    # Registration (issue 25): a onto b through the service, their centres as a landmark pair.
+    la, lb = os.path.join(work, "la.txt"), os.path.join(work, "lb.txt")
+    open(la, "w").write("112\n")
+    open(lb, "w").write("144\n")
+    corr, morph = os.path.join(work, "corr.csv"), os.path.join(work, "morph.obj")
+    rc, out, err = run("--json", "register", a, b, "--landmarks", la, lb, "-o", corr, "--morph", morph)
+    rep = json.loads(out) if rc == 0 else {}
+    rows = open(corr).read().splitlines() if rc == 0 else []
+    check(rc == 0 and len(rows) == 226 and rows[0].startswith("source_vertex,target_face"),
+          f"register: the correspondence has a row per vertex: {rc} {len(rows)} {err!r}")
+    check(rep.get("domain_folded_faces") == 0 and rep.get("match", {}).get("max_landmark_error", 1) < 1e-9,
+          f"register: no fold, the landmark hit: {rep.get('match')}")
+    check(rc == 0 and sum(1 for l in open(morph) if l.startswith("v ")) == 225, "register: the morph has a's vertices")
+    rc, out, err = run("register", a, tetra)
+    check(rc == 2 and len(err.strip().splitlines()) == 1 and "needs a topological disk" in err, f"register a disk onto a sphere: 2 {rc} {err!r}")
+    rc, out, err = run("register", a, b, "--landmarks", la, os.path.join(fixtures, "valid", "tetra.obj"))
+    check(rc == 2 and len(err.strip().splitlines()) == 1, f"register with a bad landmarks file: 2 {rc} {err!r}")
     rc, out, err = run("--json", "distance", a, b)
     d = json.loads(out)["distance"] if rc == 0 else -1
     check(rc == 0 and d > 0, f"distance: {rc} {d} {err!r}")
