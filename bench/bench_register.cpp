@@ -6,10 +6,14 @@
 //     conformal route; prints per pair and route the median / mean / 90th percentile of the
 //     normalized geodesic error, the domain folds and flipped morph faces, and the cumulative
 //     error curves (share of points within 0, 0.01, ..., 0.25), Kim et al. 2011 style.
+//     --euclidean: straight-line errors at every vertex instead (quick sweeps).
+//   bench_register consistency MESH
+//     How far the two maps of a pair disagree in the domain after the best turn.
 //   bench_register time MESH [--subdivide S]
 //     End-to-end time of registering the mesh (subdivided S times) onto its remeshed, bent copy.
 #include <algorithm>
 #include <chrono>
+#include <complex>
 #include <cstdio>
 #include <cstdlib>
 #include <string>
@@ -51,6 +55,18 @@ jobs::RegisterRequest request_for(const registration::TruthPair& p, jobs::Domain
   return r;
 }
 
+// Euclidean stand-in for the geodesic error (a lower bound, equal to it for near points):
+// for quick sweeps; the figures of record use geodesics.
+std::vector<double> euclidean_errors(const registration::TruthPair& p, const std::vector<registration::SurfacePoint>& found) {
+  const mesh::Vertices a = registration::positions(p.target, p.truth), b = registration::positions(p.target, found);
+  const double scale = std::sqrt(mesh::total_area(p.target));
+  std::vector<double> e;
+  for (Eigen::Index i = 0; i < a.rows(); ++i) e.push_back((a.row(i) - b.row(i)).norm() / scale);
+  return e;
+}
+
+bool g_euclidean = false;
+
 int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
   const std::vector<std::pair<Deformation, double>> deformations = {
       {Deformation::kNone, 0}, {Deformation::kBend, 0.5}, {Deformation::kTwist, 0.3}, {Deformation::kStretch, 0.2}};
@@ -75,7 +91,8 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
           const double sec = seconds_since(t0);
           std::vector<registration::SurfacePoint> found;
           for (const auto& [f, w] : out.target_points) found.push_back({f, w});
-          const std::vector<double> e = registration::registration_errors(p, found, samples);
+          const std::vector<double> e =
+              g_euclidean ? euclidean_errors(p, found) : registration::registration_errors(p, found, samples);
           route.all_errors.insert(route.all_errors.end(), e.begin(), e.end());
           double mean = 0;
           for (double x : e) mean += x / static_cast<double>(e.size());
@@ -97,6 +114,38 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
                 quantile(route.all_errors, 0.5));
     for (size_t i = 0; i < c.size(); ++i) std::printf(" %.2f:%.3f", thresholds[i], c[i]);
     std::printf("\n");
+  }
+  return 0;
+}
+
+// How far the two maps of a ground-truth pair disagree in the domain: each source vertex's
+// image against the target map's image of its true place, after the best turn over all
+// vertices (no landmarks): the part of the error no g of the turn can remove.
+int consistency(const std::string& path, Deformation d, double amount) {
+  mesh::CleanMesh cm = mesh::load_mesh(path);
+  mesh::require_valid(cm, path);
+  const registration::TruthPair p = registration::make_truth_pair(cm.mesh, d, amount, 1.0, 6);
+  for (jobs::MapMethod method : {jobs::MapMethod::kAreaPreserving, jobs::MapMethod::kConformal}) {
+    jobs::MapRequest r;
+    r.method = method;
+    const jobs::MapOutcome a = jobs::run_map(mesh::clean(p.source), "source", r);
+    const jobs::MapOutcome b = jobs::run_map(mesh::clean(p.target), "target", r);
+    std::vector<std::complex<double>> x, y;
+    std::complex<double> sum = 0;
+    for (int v = 0; v < a.positions.rows(); ++v) {
+      const auto& t = p.truth[static_cast<size_t>(v)];
+      Eigen::Vector3d q = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 3; ++k) q += t.bary[k] * b.positions.row(p.target.F(t.face, k)).transpose();
+      x.emplace_back(a.positions(v, 0), a.positions(v, 1));
+      y.emplace_back(q.x(), q.y());
+      sum += std::conj(x.back()) * y.back();
+    }
+    const std::complex<double> turn = std::polar(1.0, std::arg(sum));
+    std::vector<double> e;
+    for (size_t i = 0; i < x.size(); ++i) e.push_back(std::abs(turn * x[i] - y[i]));
+    std::printf("%s %s %.2f (%s): domain disagreement after the best turn: median %.4f, p90 %.4f, max %.4f\n", path.c_str(),
+                registration::deformation_name(d), amount, jobs::map_method_name(method), quantile(e, 0.5), quantile(e, 0.9),
+                quantile(e, 1.0));
   }
   return 0;
 }
@@ -132,7 +181,7 @@ int time_one(const std::string& path, int subdivide) {
 
 int main(int argc, char** argv) {
   if (argc < 3) {
-    std::fprintf(stderr, "usage: bench_register eval [--samples N] [--landmarks K] MESH... | time MESH [--subdivide S]\n");
+    std::fprintf(stderr, "usage: bench_register eval [--samples N] [--landmarks K] [--euclidean] MESH... | time MESH [--subdivide S]\n");
     return 2;
   }
   const std::string mode = argv[1];
@@ -143,11 +192,16 @@ int main(int argc, char** argv) {
     if (a == "--samples" && i + 1 < argc) samples = std::atoi(argv[++i]);
     else if (a == "--landmarks" && i + 1 < argc) landmarks = std::atoi(argv[++i]);
     else if (a == "--subdivide" && i + 1 < argc) subdivide = std::atoi(argv[++i]);
+    else if (a == "--euclidean") g_euclidean = true;
     else meshes.push_back(a);
   }
   try {
     if (mode == "eval") return eval(meshes, samples, landmarks);
     if (mode == "time" && meshes.size() == 1) return time_one(meshes[0], subdivide);
+    if (mode == "consistency" && meshes.size() == 1) {
+      consistency(meshes[0], Deformation::kNone, 0);
+      return consistency(meshes[0], Deformation::kBend, 0.5);
+    }
   } catch (const std::exception& e) {
     std::fprintf(stderr, "bench_register: %s\n", e.what());
     return 1;
