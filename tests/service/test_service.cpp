@@ -423,7 +423,14 @@ TEST(Service, FullQueueUnfinishedResultsAndBadSpecsGetTheirStatus) {
   pb::SubmitJobRequest t = map_spec(small, pb::DISK, pb::CONFORMAL);
   t.mutable_map()->set_t(0.5);
   EXPECT_STATUS(c.submit(t);, INVALID_ARGUMENT, "t and weights apply to the area-preserving method");
-  EXPECT_STATUS(c.submit(pb::SubmitJobRequest());, INVALID_ARGUMENT, "the job has no spec (map, distance or matrix)");
+  EXPECT_STATUS(c.submit(pb::SubmitJobRequest());, INVALID_ARGUMENT, "the job has no spec (map, distance, matrix or registration)");
+  pb::SubmitJobRequest reg;
+  reg.mutable_registration()->set_source(small);
+  reg.mutable_registration()->set_target(ico);
+  EXPECT_STATUS(c.submit(reg);, INVALID_ARGUMENT, "is a sphere mesh; the disk domain needs a topological disk");
+  reg.mutable_registration()->set_target(small);
+  reg.mutable_registration()->add_source_landmarks(3);
+  EXPECT_STATUS(c.submit(reg);, INVALID_ARGUMENT, "the source has 1 landmarks and the target 0");
   pb::SubmitJobRequest one;
   one.mutable_matrix()->add_meshes(small);
   EXPECT_STATUS(c.submit(one);, INVALID_ARGUMENT, "a distance matrix needs at least two meshes");
