@@ -118,8 +118,7 @@ struct RegisterOutcome {
   std::vector<CorrespondenceRow> rows;  // one per vertex of the cleaned source mesh
   /// The source's cleaned mesh placed on the target: its faces over the rows' positions.
   mesh::TriMesh morph;
-  /// Where each morph vertex lies on the cleaned target mesh (face of `target_mesh`, bary).
-  mesh::TriMesh target_mesh;
+  /// Where each morph vertex lies on the cleaned target mesh (its face, bary).
   std::vector<std::pair<int, Eigen::Vector3d>> target_points;
   /// domain, method, landmarks, source{map report}, target{map report}, match{rotation_rad,
   /// steps, max_landmark_error}, domain_folded_faces, morph_flipped_faces, seconds{...}.

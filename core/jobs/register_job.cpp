@@ -168,7 +168,6 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
   RegisterOutcome out;
   // Rows in the cleaned source's order; the cut vertex goes onto the target's cut vertex.
   const std::vector<int> surface_of = inverse(a.vertex_origin, source.input_vertices);
-  out.target_mesh = target.mesh;
   out.morph.F = source.mesh.F;
   out.morph.V.resize(source.mesh.num_vertices(), 3);
   for (int j = 0; j < source.mesh.num_vertices(); ++j) {

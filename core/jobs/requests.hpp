@@ -98,7 +98,7 @@ struct RegisterRequest {
   double tolerance = 0;  // the maps' tolerance (0: their default)
   int max_iterations = 200;
 
-  static constexpr size_t kMaxLandmarks = 10000;
+  static constexpr size_t kMaxLandmarks = 1000;  // each matching step solves a dense (L+3)^2 system
   void validate() const;
 };
 

@@ -12,6 +12,7 @@
 #include <functional>
 
 #include "common/error.hpp"
+#include "mesh/topology.hpp"
 
 namespace brenier::registration {
 
@@ -231,22 +232,10 @@ void check_distinct(const std::vector<LandmarkPair>& l, double eps) {
     }
 }
 
-std::vector<char> boundary_of(const mesh::Faces& F, Eigen::Index n) {
-  // An edge used once is a boundary edge.
-  std::vector<std::pair<int, int>> edges;
-  for (Eigen::Index f = 0; f < F.rows(); ++f)
-    for (int k = 0; k < 3; ++k) {
-      const int a = F(f, k), b = F(f, (k + 1) % 3);
-      edges.emplace_back(std::min(a, b), std::max(a, b));
-    }
-  std::sort(edges.begin(), edges.end());
-  std::vector<char> out(static_cast<size_t>(n), 0);
-  for (size_t i = 0; i < edges.size();) {
-    size_t j = i;
-    while (j < edges.size() && edges[j] == edges[i]) ++j;
-    if (j - i == 1) out[static_cast<size_t>(edges[i].first)] = out[static_cast<size_t>(edges[i].second)] = 1;
-    i = j;
-  }
+std::vector<char> boundary_of(const mesh::Vertices& points, const mesh::Faces& F) {
+  std::vector<char> out(static_cast<size_t>(points.rows()), 0);
+  for (const auto& loop : mesh::boundary_loops(mesh::TriMesh{points, F}))
+    for (int v : loop) out[static_cast<size_t>(v)] = 1;
   return out;
 }
 
@@ -260,7 +249,7 @@ void check_vertices(const std::vector<LandmarkPair>& l, Eigen::Index n) {
 DomainMatch match_disks(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks) {
   check_vertices(landmarks, points.rows());
   check_distinct(landmarks, 1e-12);
-  const std::vector<char> boundary = boundary_of(faces, points.rows());
+  const std::vector<char> boundary = boundary_of(points, faces);
   DomainMatch out;
   // The least-squares turn: the angle of sum conj(p_k) q_k.
   std::complex<double> sum = 0;
