@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
 #include "common/error.hpp"
 
@@ -174,6 +175,44 @@ std::vector<double> read_weights_file(const std::string& path) {
   }
   if (w.empty()) invalid(path + ": no weights");
   return w;
+}
+
+std::vector<SiteEntry> read_sites_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) invalid("cannot read the sites file " + path);
+  std::vector<SiteEntry> out;
+  std::string line;
+  for (int n = 1; std::getline(in, line); ++n) {
+    for (char& c : line)
+      if (c == ',' || c == '\t' || c == '\r') c = ' ';
+    std::istringstream words(line);
+    std::vector<std::string> w;
+    for (std::string t; words >> t;) w.push_back(t);
+    if (w.empty() || w[0][0] == '#') continue;
+    SiteEntry e;
+    e.line = n;
+    auto bad = [&] {
+      invalid(path + ":" + std::to_string(n) + ": '" + line + "' is neither a vertex number nor three coordinates");
+    };
+    if (w.size() == 1) {
+      char* end = nullptr;
+      errno = 0;
+      const long v = std::strtol(w[0].c_str(), &end, 10);
+      if (*end != '\0' || errno != 0 || v < 0 || v > INT32_MAX) bad();
+      e.vertex = static_cast<int>(v);
+    } else if (w.size() == 3) {
+      for (size_t k = 0; k < 3; ++k) {
+        char* end = nullptr;
+        e.point[k] = std::strtod(w[k].c_str(), &end);
+        if (*end != '\0' || !std::isfinite(e.point[k])) bad();
+      }
+    } else {
+      bad();
+    }
+    out.push_back(e);
+  }
+  if (out.empty()) invalid(path + ": no sites");
+  return out;
 }
 
 std::vector<int> read_landmarks_file(const std::string& path) {

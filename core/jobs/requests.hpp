@@ -10,6 +10,7 @@
 
 #include <cstdint>
 #include <optional>
+#include <array>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -105,6 +106,18 @@ struct RegisterRequest {
 /// A landmarks file: one vertex number per line (blank lines and lines starting with '#'
 /// skipped). Error(kInvalidArgument) naming the file and line.
 std::vector<int> read_landmarks_file(const std::string& path);
+
+/// One site of a sites file: a vertex number of the input mesh, or a point (x, y, z) that
+/// must lie on the surface.
+struct SiteEntry {
+  int line = 0;
+  int vertex = -1;  // >= 0: a vertex number
+  std::array<double, 3> point{};
+};
+/// A sites file: one site per line, either one vertex number or three coordinates
+/// (separated by spaces, tabs or commas); blank lines and lines starting with '#' skipped.
+/// Error(kInvalidArgument) naming the file and line.
+std::vector<SiteEntry> read_sites_file(const std::string& path);
 
 /// Whitespace-separated positive weights (Error(kInvalidArgument) naming the file and the
 /// entry otherwise); their count is checked against the mesh when the job runs.

@@ -23,6 +23,12 @@ struct TriMesh {
   int num_faces() const { return static_cast<int>(F.rows()); }
 };
 
+/// A point of a triangle mesh: its face and barycentric coordinates (>= 0, summing to 1).
+struct SurfacePoint {
+  int face = -1;
+  Eigen::Vector3d bary = Eigen::Vector3d(1, 0, 0);
+};
+
 /// A mesh exactly as a file stored it: positions and polygons of any size, before
 /// triangulation or any check. Indices are 0-based but not yet range-checked.
 struct PolygonSoup {

@@ -11,11 +11,7 @@
 
 namespace brenier::registration {
 
-/// A point of a triangle mesh: its face and barycentric coordinates (>= 0, summing to 1).
-struct SurfacePoint {
-  int face = -1;
-  Eigen::Vector3d bary = Eigen::Vector3d(1, 0, 0);
-};
+using mesh::SurfacePoint;
 
 /// Locates each row of `points` in the domain mesh (F over `domain`: planar with z = 0, or on
 /// the unit sphere): on the plane the triangle holding it, on the sphere the chord triangle

@@ -3,9 +3,6 @@
 #include "register/evaluation.hpp"
 
 #include <CGAL/Polygon_mesh_processing/remesh.h>
-#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
-#include <CGAL/Surface_mesh.h>
-#include <CGAL/Surface_mesh_shortest_path.h>
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
@@ -14,25 +11,16 @@
 #include <cstdlib>
 
 #include "common/error.hpp"
+#include "mesh/cgal_surface.hpp"
 #include "mesh/geometry.hpp"
 
 namespace brenier::registration {
 
 namespace {
 
-using K = CGAL::Exact_predicates_inexact_constructions_kernel;
-using SM = CGAL::Surface_mesh<K::Point_3>;
-
-SM to_surface_mesh(const mesh::TriMesh& m) {
-  SM sm;
-  std::vector<SM::Vertex_index> vs;
-  for (int i = 0; i < m.num_vertices(); ++i) vs.push_back(sm.add_vertex(K::Point_3(m.V(i, 0), m.V(i, 1), m.V(i, 2))));
-  for (int f = 0; f < m.num_faces(); ++f)
-    if (sm.add_face(vs[static_cast<size_t>(m.F(f, 0))], vs[static_cast<size_t>(m.F(f, 1))], vs[static_cast<size_t>(m.F(f, 2))]) ==
-        SM::null_face())
-      fail(ErrorCode::kInternal, "remesh: face " + std::to_string(f) + " is not manifold");
-  return sm;
-}
+using mesh::cgal::Paths;
+using SM = mesh::cgal::Surface;
+using mesh::cgal::to_surface_mesh;
 
 // Principal axes of the vertices (columns, by decreasing spread) and their centroid.
 void principal_axes(const mesh::Vertices& V, Eigen::Vector3d& c, Eigen::Matrix3d& axes) {
@@ -114,31 +102,8 @@ std::vector<SurfacePoint> nearest_points(const mesh::TriMesh& on, const mesh::Ve
 
 std::vector<double> geodesic_distances(const mesh::TriMesh& m, const std::vector<SurfacePoint>& from,
                                        const std::vector<SurfacePoint>& to) {
-  using Traits = CGAL::Surface_mesh_shortest_path_traits<K, SM>;
-  using Paths = CGAL::Surface_mesh_shortest_path<Traits>;
   const SM sm = to_surface_mesh(m);
-  // CGAL's barycentric coordinates follow its own corner order of each face: find it.
-  auto cgal_bary = [&](const SurfacePoint& p) {
-    const SM::Face_index f(static_cast<SM::size_type>(p.face));
-    Traits::Barycentric_coordinates b = {{0, 0, 0}};
-    int k = 0;
-    for (auto v : vertices_around_face(sm.halfedge(f), sm)) {
-      for (int j = 0; j < 3; ++j)
-        if (static_cast<int>(v.idx()) == m.F(p.face, j)) b[static_cast<size_t>(k)] = p.bary[j];
-      ++k;
-    }
-    // CGAL's triangle may start at another corner of the cycle: take the rotation that
-    // reproduces the point.
-    Eigen::Vector3d want = Eigen::Vector3d::Zero();
-    for (int j = 0; j < 3; ++j) want += p.bary[j] * m.V.row(m.F(p.face, j)).transpose();
-    for (int r = 0; r < 3; ++r) {
-      const Traits::Barycentric_coordinates c = {{b[static_cast<size_t>(r)], b[static_cast<size_t>((r + 1) % 3)],
-                                                  b[static_cast<size_t>((r + 2) % 3)]}};
-      const K::Point_3 q = Paths::point(f, c, sm);
-      if ((Eigen::Vector3d(q.x(), q.y(), q.z()) - want).norm() <= 1e-9 * (1 + want.norm())) return std::make_pair(f, c);
-    }
-    fail(ErrorCode::kInternal, "geodesic_distances: no corner order of face " + std::to_string(p.face) + " fits");
-  };
+  auto cgal_bary = [&](const SurfacePoint& p) { return mesh::cgal::location(sm, m, p); };
   std::vector<double> d(from.size(), 0);
   for (long i = 0; i < static_cast<long>(from.size()); ++i) {
     // Both ways, the shorter kept: CGAL 5.5 returns a too long path one way on some flat

@@ -45,6 +45,8 @@ void add_distance(CLI::App& app, Action& action);
 void add_render(CLI::App& app, Action& action);
 /// register: surface registration (Alg. 7).
 void add_register(CLI::App& app, Action& action);
+/// omt-surface: Riemannian optimal transport on the surface (Alg. 4).
+void add_omt_surface(CLI::App& app, Action& action);
 
 /// Writes a picture or a report whole (Error(kInvalidArgument) naming the file otherwise).
 void write_output(const std::string& path, const std::string& bytes);

@@ -51,6 +51,7 @@ int main(int argc, char** argv) {
   brenier::tools::add_distance(app, action);
   brenier::tools::add_render(app, action);
   brenier::tools::add_register(app, action);
+  brenier::tools::add_omt_surface(app, action);
   try {
     app.parse(argc, argv);
   } catch (const CLI::CallForHelp& e) {

@@ -1,0 +1,483 @@
+// Riemannian optimal mass transport on a surface (geodesic_omt.hpp; dissertation Alg. 4).
+#include "omt/geodesic_omt.hpp"
+
+#include <Eigen/CholmodSupport>
+#include <Eigen/SparseCore>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include "common/error.hpp"
+#include "common/parallel.hpp"
+#include "mesh/geodesics.hpp"
+#include "mesh/geometry.hpp"
+#include "mesh/shapes.hpp"
+#include "mesh/topology.hpp"
+
+namespace brenier::omt {
+
+namespace {
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// A point of face t in the face's child after subdivide_midpoint, which splits (a, b, c)
+// into [a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca] as faces 4t .. 4t + 3.
+mesh::SurfacePoint into_child(const mesh::SurfacePoint& p) {
+  const double a = p.bary[0], b = p.bary[1], c = p.bary[2];
+  mesh::SurfacePoint q;
+  if (a >= 0.5) {
+    q = {4 * p.face, {2 * a - 1, 2 * b, 2 * c}};
+  } else if (b >= 0.5) {
+    q = {4 * p.face + 1, {2 * b - 1, 2 * c, 2 * a}};
+  } else if (c >= 0.5) {
+    q = {4 * p.face + 2, {2 * c - 1, 2 * a, 2 * b}};
+  } else {
+    q = {4 * p.face + 3, {1 - 2 * c, 1 - 2 * a, 1 - 2 * b}};
+  }
+  q.bary = q.bary.cwiseMax(0.0);
+  q.bary /= q.bary.sum();
+  return q;
+}
+
+// One site's stored squared distance at a vertex.
+struct Near {
+  int site;
+  double d2;
+};
+
+// The pieces one face contributes: its cells' areas (times the face density), costs and the
+// sides between them.
+struct FacePieces {
+  std::vector<std::pair<int, double>> mass;  // site, rho * area
+  std::vector<double> cost;                  // rho * int d_site^2
+  std::vector<DualEdge> sides;               // i < j, rho * length / |grad(d_i^2 - d_j^2)|
+  bool certified = true;
+  double envelope = 0;  // an upper bound of the lower envelope on the face (inf: no candidate)
+};
+
+struct Cells {
+  Eigen::VectorXd mass, cost;
+  std::vector<DualEdge> sides;
+  std::vector<int> face_cell;
+  Eigen::VectorXd face_share;
+  bool certified = true;
+  double needed = -std::numeric_limits<double>::infinity();  // the highest envelope of an uncertified face
+};
+
+// A convex polygon in the face's barycentric chart (s, t): x = a + s (b - a) + t (c - a);
+// label[k]: the site whose side the edge from corner k to k + 1 lies on (-1: the face's own
+// edge).
+struct Polygon {
+  std::vector<Eigen::Vector2d> p;
+  std::vector<int> label;
+};
+
+// Keeps the part of `poly` where the affine g(s, t) = g0 + s (g1 - g0) + t (g2 - g0) <= 0;
+// the new edge is labelled `site`.
+Polygon clip(const Polygon& poly, const Eigen::Vector3d& g, int site) {
+  auto value = [&](const Eigen::Vector2d& q) { return g[0] + q.x() * (g[1] - g[0]) + q.y() * (g[2] - g[0]); };
+  Polygon out;
+  const size_t n = poly.p.size();
+  for (size_t k = 0; k < n; ++k) {
+    const Eigen::Vector2d& a = poly.p[k];
+    const Eigen::Vector2d& b = poly.p[(k + 1) % n];
+    const double ga = value(a), gb = value(b);
+    if (ga <= 0) {
+      out.p.push_back(a);
+      out.label.push_back(poly.label[k]);
+    }
+    if ((ga <= 0) != (gb <= 0)) {
+      const double s = ga / (ga - gb);
+      out.p.push_back(a + s * (b - a));
+      // Leaving the kept side: the new point starts the cut edge; entering: the old edge.
+      out.label.push_back(ga <= 0 ? site : poly.label[k]);
+    }
+  }
+  return out;
+}
+
+class Transport {
+ public:
+  Transport(const mesh::TriMesh& m, const std::vector<mesh::SurfacePoint>& sites, const Eigen::VectorXd& rho,
+            const Eigen::VectorXd& nu, GeodesicMethod method)
+      : m_(m), sites_(sites), rho_(rho), nu_(nu), method_(method) {
+    const int nf = m.num_faces();
+    area_ = mesh::face_areas(m);
+    for (int f = 0; f < nf; ++f)
+      for (int k = 0; k < 3; ++k)
+        diameter_ = std::max(diameter_, (m.V.row(m.F(f, k)) - m.V.row(m.F(f, (k + 1) % 3))).norm());
+    const double mean_rho = rho_.dot(area_) / area_.sum();
+    radius_.resize(static_cast<Eigen::Index>(sites.size()));
+    for (Eigen::Index i = 0; i < radius_.size(); ++i)
+      radius_[i] = 3 * std::sqrt(std::max(nu_[i], nu_.mean()) / (M_PI * mean_rho)) + 2 * diameter_;
+    complete_.assign(sites.size(), 0);
+    if (method_ == GeodesicMethod::kHeat) heat_ = std::make_unique<mesh::HeatGeodesics>(m_);
+  }
+
+  // Alg. 4's geodesics from the sites `which` (all when empty), each kept within its radius;
+  // then the per-vertex lists are rebuilt from every site's.
+  void compute_distances(std::vector<int> which = {}) {
+    ++rounds_;
+    const int nv = m_.num_vertices(), ns = static_cast<int>(sites_.size());
+    if (which.empty())
+      for (int i = 0; i < ns; ++i) which.push_back(i);
+    kept_.resize(static_cast<size_t>(ns));
+    constexpr int kBlock = 32;
+    for (size_t first = 0; first < which.size(); first += kBlock) {
+      const int b = static_cast<int>(std::min<size_t>(kBlock, which.size() - first));
+      std::vector<mesh::SurfacePoint> from;
+      for (int c = 0; c < b; ++c) from.push_back(sites_[static_cast<size_t>(which[first + static_cast<size_t>(c)])]);
+      Eigen::MatrixXd D(nv, b);
+      if (heat_) {
+        D = heat_->distances(from);
+      } else {
+#pragma omp parallel for schedule(dynamic, 1)
+        for (int c = 0; c < b; ++c) D.col(c) = mesh::exact_distances(m_, from[static_cast<size_t>(c)]);
+      }
+#pragma omp parallel for schedule(dynamic, 1)
+      for (int c = 0; c < b; ++c) {
+        const int i = which[first + static_cast<size_t>(c)];
+        complete_[static_cast<size_t>(i)] = D.col(c).maxCoeff() <= radius_[i];
+        auto& list = kept_[static_cast<size_t>(i)];
+        list.clear();
+        for (int v = 0; v < nv; ++v)
+          if (D(v, c) <= radius_[i]) list.push_back({v, D(v, c) * D(v, c)});
+      }
+    }
+    near_.assign(static_cast<size_t>(nv), {});
+    for (int i = 0; i < ns; ++i)  // in site order: each vertex's list sorted by site
+      for (const Near& e : kept_[static_cast<size_t>(i)]) near_[static_cast<size_t>(e.site)].push_back({i, e.d2});
+  }
+
+  // Where the certificate failed at heights h: the incomplete sites that could reach below
+  // the highest envelope `needed` get the radius that rules them out there, with a margin;
+  // their distances are recomputed.
+  void grow_radii(const Eigen::VectorXd& h, double needed) {
+    std::vector<int> grow;
+    for (Eigen::Index i = 0; i < radius_.size(); ++i) {
+      if (complete_[static_cast<size_t>(i)] || std::pow(std::max(0.0, radius_[i] - diameter_), 2) - h[i] > needed) continue;
+      radius_[i] = std::max(1.5 * radius_[i], 1.2 * (std::sqrt(std::max(0.0, needed + h[i])) + diameter_));
+      grow.push_back(static_cast<int>(i));
+    }
+    if (grow.empty())  // faces without candidates: every incomplete radius grows
+      for (Eigen::Index i = 0; i < radius_.size(); ++i)
+        if (!complete_[static_cast<size_t>(i)]) {
+          radius_[i] *= 1.5;
+          grow.push_back(static_cast<int>(i));
+        }
+    compute_distances(grow);
+  }
+  int rounds() const { return rounds_; }
+
+  Cells cells(const Eigen::VectorXd& h) const {
+    const int nf = m_.num_faces(), ns = static_cast<int>(sites_.size());
+    // The certificate's bound: no site missing at a corner of a face reaches below it there.
+    double bound = std::numeric_limits<double>::infinity();
+    for (int j = 0; j < ns; ++j)
+      if (!complete_[static_cast<size_t>(j)])
+        bound = std::min(bound, std::pow(std::max(0.0, radius_[j] - diameter_), 2) - h[j]);
+    std::vector<FacePieces> pieces(static_cast<size_t>(nf));
+#pragma omp parallel for schedule(dynamic, 512)
+    for (int f = 0; f < nf; ++f) pieces[static_cast<size_t>(f)] = face(f, h, bound);
+    Cells out;
+    out.mass = Eigen::VectorXd::Zero(ns);
+    out.cost = Eigen::VectorXd::Zero(ns);
+    out.face_cell.assign(static_cast<size_t>(nf), -1);
+    out.face_share = Eigen::VectorXd::Zero(nf);
+    for (int f = 0; f < nf; ++f) {  // sums in face order: the same on any thread count
+      const FacePieces& p = pieces[static_cast<size_t>(f)];
+      out.certified = out.certified && p.certified;
+      if (!p.certified) out.needed = std::max(out.needed, p.envelope);
+      double total = 0, best = -1;
+      for (size_t k = 0; k < p.mass.size(); ++k) {
+        out.mass[p.mass[k].first] += p.mass[k].second;
+        out.cost[p.mass[k].first] += p.cost[k];
+        total += p.mass[k].second;
+        if (p.mass[k].second > best) {
+          best = p.mass[k].second;
+          out.face_cell[static_cast<size_t>(f)] = p.mass[k].first;
+        }
+      }
+      out.face_share[f] = total > 0 ? best / total : 0;
+      out.sides.insert(out.sides.end(), p.sides.begin(), p.sides.end());
+    }
+    return out;
+  }
+
+ private:
+  // The cells' pieces on face f at heights h.
+  FacePieces face(int f, const Eigen::VectorXd& h, double bound) const {
+    FacePieces out;
+    const int corner[3] = {m_.F(f, 0), m_.F(f, 1), m_.F(f, 2)};
+    // Candidates: sites kept at all three corners (the lists are sorted by site).
+    std::vector<std::pair<int, Eigen::Vector3d>> cand;  // site, psi at the corners
+    const auto& l0 = near_[static_cast<size_t>(corner[0])];
+    const auto& l1 = near_[static_cast<size_t>(corner[1])];
+    const auto& l2 = near_[static_cast<size_t>(corner[2])];
+    for (size_t a = 0, b = 0, c = 0; a < l0.size(); ++a) {
+      const int s = l0[a].site;
+      while (b < l1.size() && l1[b].site < s) ++b;
+      while (c < l2.size() && l2[c].site < s) ++c;
+      if (b < l1.size() && c < l2.size() && l1[b].site == s && l2[c].site == s)
+        cand.emplace_back(s, Eigen::Vector3d(l0[a].d2, l1[b].d2, l2[c].d2));
+    }
+    // E: an upper bound of the lower envelope on the face; sites above it nowhere win.
+    double envelope = std::numeric_limits<double>::infinity();
+    for (auto& [s, psi] : cand) {
+      psi.array() -= h[s];
+      envelope = std::min(envelope, psi.maxCoeff());
+    }
+    out.certified = !cand.empty() && envelope < bound;
+    out.envelope = envelope;
+    std::vector<std::pair<int, Eigen::Vector3d>> live;
+    for (const auto& c : cand)
+      if (c.second.minCoeff() <= envelope) live.push_back(c);
+    const double rho = rho_[f], A = area_[f];
+    const Eigen::Vector3d a = m_.V.row(corner[0]).transpose(), b = m_.V.row(corner[1]).transpose(),
+                          c = m_.V.row(corner[2]).transpose();
+    auto point = [&](const Eigen::Vector2d& q) -> Eigen::Vector3d { return a + q.x() * (b - a) + q.y() * (c - a); };
+    auto linear = [](const Eigen::Vector3d& v, const Eigen::Vector2d& q) { return v[0] + q.x() * (v[1] - v[0]) + q.y() * (v[2] - v[0]); };
+    const Eigen::Vector3d n = (b - a).cross(c - a).normalized();
+    const Eigen::Vector3d grad_lambda[3] = {n.cross(c - b) / (2 * A), n.cross(a - c) / (2 * A), n.cross(b - a) / (2 * A)};
+    for (size_t i = 0; i < live.size(); ++i) {
+      Polygon poly{{{0, 0}, {1, 0}, {0, 1}}, {-1, -1, -1}};
+      for (size_t j = 0; j < live.size() && poly.p.size() >= 3; ++j)
+        if (j != i) poly = clip(poly, live[i].second - live[j].second, static_cast<int>(j));
+      if (poly.p.size() < 3) continue;
+      double twice = 0;  // twice the chart area
+      Eigen::Vector2d centroid = Eigen::Vector2d::Zero();
+      for (size_t k = 0; k < poly.p.size(); ++k) {
+        const Eigen::Vector2d& p = poly.p[k];
+        const Eigen::Vector2d& q = poly.p[(k + 1) % poly.p.size()];
+        const double cr = p.x() * q.y() - p.y() * q.x();
+        twice += cr;
+        centroid += cr * (p + q);
+      }
+      if (!(twice > 0)) continue;
+      centroid /= 3 * twice;
+      const double piece = rho * A * twice;  // the chart's triangle has area 1/2
+      const int site = live[i].first;
+      out.mass.emplace_back(site, piece);
+      // d_i^2 is linear on the face, so its mean over the piece is its value at the centroid.
+      out.cost.push_back(piece * linear(live[i].second + Eigen::Vector3d::Constant(h[site]), centroid));
+      for (size_t k = 0; k < poly.p.size(); ++k) {
+        const int j = poly.label[k];
+        if (j < 0 || live[static_cast<size_t>(j)].first < site) continue;  // each side once, from its lower site
+        const Eigen::Vector3d g = live[i].second - live[static_cast<size_t>(j)].second;
+        const Eigen::Vector3d grad = g[0] * grad_lambda[0] + g[1] * grad_lambda[1] + g[2] * grad_lambda[2];
+        const double len = (point(poly.p[(k + 1) % poly.p.size()]) - point(poly.p[k])).norm();
+        if (grad.norm() > 0 && len > 0) out.sides.push_back({site, live[static_cast<size_t>(j)].first, rho * len / grad.norm()});
+      }
+    }
+    return out;
+  }
+
+  const mesh::TriMesh& m_;
+  const std::vector<mesh::SurfacePoint>& sites_;
+  const Eigen::VectorXd& rho_;  // per face
+  const Eigen::VectorXd& nu_;
+  GeodesicMethod method_;
+  Eigen::VectorXd area_, radius_;
+  double diameter_ = 0;  // the longest edge: the faces' diameter
+  std::vector<char> complete_;  // site i's distances are kept everywhere
+  std::vector<std::vector<Near>> near_;  // per vertex, sorted by site
+  std::vector<std::vector<Near>> kept_;  // per site: (vertex, d^2) within its radius
+  std::unique_ptr<mesh::HeatGeodesics> heat_;
+  int rounds_ = 0;
+};
+
+// The working mesh and its per-face density: the input midpoint-subdivided `levels` times,
+// the density interpolated linearly at the new vertices and averaged on each face.
+void subdivide(const mesh::TriMesh& in, const Eigen::VectorXd& vertex_density, int levels, mesh::TriMesh& out,
+               Eigen::VectorXd& face_density) {
+  out = in;
+  mesh::TriMesh carried = in;  // the density rides along as a coordinate
+  carried.V.setZero();
+  carried.V.col(0) = vertex_density;
+  for (int l = 0; l < levels; ++l) {
+    out = mesh::subdivide_midpoint(out);
+    carried = mesh::subdivide_midpoint(carried);
+  }
+  face_density.resize(out.num_faces());
+  for (int f = 0; f < out.num_faces(); ++f)
+    face_density[f] = (carried.V(out.F(f, 0), 0) + carried.V(out.F(f, 1), 0) + carried.V(out.F(f, 2), 0)) / 3;
+}
+
+void check_input(const mesh::TriMesh& m, const std::vector<mesh::SurfacePoint>& sites, const Eigen::VectorXd& masses,
+                 const Eigen::VectorXd& density) {
+  const int k = static_cast<int>(sites.size());
+  if (k < 1) invalid("Riemannian OMT: no sites");
+  if (masses.size() != 0 && masses.size() != k)
+    invalid("Riemannian OMT: " + std::to_string(masses.size()) + " masses for " + std::to_string(k) + " sites");
+  if (masses.size() != 0 && (!(masses.array() > 0).all() || !masses.allFinite()))
+    invalid("Riemannian OMT: the masses must be positive finite numbers");
+  if (density.size() != 0 && density.size() != m.num_vertices())
+    invalid("Riemannian OMT: " + std::to_string(density.size()) + " density values for " +
+            std::to_string(m.num_vertices()) + " vertices");
+  if (density.size() != 0 && (!(density.array() >= 0).all() || !density.allFinite() || !(density.maxCoeff() > 0)))
+    invalid("Riemannian OMT: the density must be non-negative, finite and not all zero");
+  if (mesh::compute_topology(m).components != 1) invalid("Riemannian OMT: the mesh is not connected");
+  for (int i = 0; i < k; ++i) {
+    const auto& p = sites[static_cast<size_t>(i)];
+    if (p.face < 0 || p.face >= m.num_faces() || !p.bary.allFinite() || (p.bary.array() < -1e-12).any() ||
+        std::abs(p.bary.sum() - 1) > 1e-9)
+      invalid("Riemannian OMT: site " + std::to_string(i) + " is not a point of the mesh");
+  }
+}
+
+using Factor = Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>>;
+
+// The Newton direction: H dh = -g with H = dm/dh, the weighted graph Laplacian of the cells'
+// sides (dm_i/dh_j = -w_ij, dm_i/dh_i = sum_j w_ij), site `held` fixed (F is invariant under
+// h + constant).
+Eigen::VectorXd newton_direction(const std::vector<DualEdge>& sides, const Eigen::VectorXd& g, Eigen::Index held,
+                                 Factor& llt, int iteration) {
+  const Eigen::Index k = g.size();
+  auto slot = [held](Eigen::Index i) { return i < held ? i : i - 1; };
+  std::vector<Eigen::Triplet<double>> entries;
+  Eigen::VectorXd diag = Eigen::VectorXd::Zero(k);
+  for (const DualEdge& e : sides) {
+    diag[e.i] += e.length;
+    diag[e.j] += e.length;
+    if (e.i == held || e.j == held) continue;
+    entries.emplace_back(slot(e.i), slot(e.j), -e.length);
+    entries.emplace_back(slot(e.j), slot(e.i), -e.length);
+  }
+  for (Eigen::Index i = 0; i < k; ++i)
+    if (i != held) entries.emplace_back(slot(i), slot(i), diag[i]);
+  Eigen::SparseMatrix<double> H(k - 1, k - 1);
+  H.setFromTriplets(entries.begin(), entries.end());
+  llt.compute(H);
+  if (llt.info() != Eigen::Success)
+    fail(ErrorCode::kNotConverged, "Riemannian OMT: the Hessian is singular at iteration " + std::to_string(iteration));
+  Eigen::VectorXd rhs(k - 1);
+  for (Eigen::Index i = 0; i < k; ++i)
+    if (i != held) rhs[slot(i)] = -g[i];
+  const Eigen::VectorXd d = llt.solve(rhs);
+  Eigen::VectorXd dh = Eigen::VectorXd::Zero(k);
+  for (Eigen::Index i = 0; i < k; ++i)
+    if (i != held) dh[i] = d[slot(i)];
+  return dh;
+}
+
+}  // namespace
+
+GeodesicOmtResult solve_geodesic_omt(const mesh::TriMesh& input, const std::vector<mesh::SurfacePoint>& input_sites,
+                                     const Eigen::VectorXd& masses, const Eigen::VectorXd& vertex_density,
+                                     const GeodesicOmtOptions& opt) {
+  check_input(input, input_sites, masses, vertex_density);
+  if (!(opt.tolerance > 0)) invalid("Riemannian OMT: the tolerance must be positive");
+  const int k = static_cast<int>(input_sites.size());
+  GeodesicOmtResult r;
+  r.subdivisions = opt.subdivisions;
+  if (r.subdivisions < 0) {
+    r.subdivisions = 0;
+    for (long faces = input.num_faces(); r.subdivisions < 4 && faces < static_cast<long>(opt.faces_per_cell) * k &&
+                                         faces * 4 <= 4'000'000;
+         faces *= 4)
+      ++r.subdivisions;
+  }
+  if (r.subdivisions > 6) invalid("Riemannian OMT: at most 6 subdivisions");
+  Eigen::VectorXd rho;
+  subdivide(input, vertex_density.size() ? vertex_density : Eigen::VectorXd::Ones(input.num_vertices()),
+            r.subdivisions, r.mesh, rho);
+  r.sites = input_sites;
+  for (int l = 0; l < r.subdivisions; ++l)
+    for (auto& p : r.sites) p = into_child(p);
+  // Two sites in one point: their cells could not be told apart.
+  const mesh::Vertices at = [&] {
+    mesh::Vertices X(k, 3);
+    for (int i = 0; i < k; ++i) {
+      const auto& p = r.sites[static_cast<size_t>(i)];
+      X.row(i).setZero();
+      for (int c = 0; c < 3; ++c) X.row(i) += p.bary[c] * r.mesh.V.row(r.mesh.F(p.face, c));
+    }
+    return X;
+  }();
+  const Eigen::VectorXd area = mesh::face_areas(r.mesh);
+  const double mu = rho.dot(area), resolution = 1e-9 * std::sqrt(area.sum());
+  for (int i = 0; i < k; ++i)
+    for (int j = i + 1; j < k; ++j)
+      if ((at.row(i) - at.row(j)).norm() <= resolution)
+        invalid("Riemannian OMT: sites " + std::to_string(i) + " and " + std::to_string(j) + " are at one point");
+  r.target = masses.size() ? Eigen::VectorXd(masses * (mu / masses.sum())) : Eigen::VectorXd::Constant(k, mu / k);
+  const Eigen::VectorXd& nu = r.target;
+
+  auto t0 = std::chrono::steady_clock::now();
+  Transport T(r.mesh, r.sites, rho, nu, opt.geodesics);
+  T.compute_distances();
+  r.seconds_geodesics = seconds_since(t0);
+  // The cells at h, the distances recomputed with larger radii until certified.
+  auto cells_at = [&](const Eigen::VectorXd& h) {
+    Cells c = T.cells(h);
+    while (!c.certified && T.rounds() < 12) {
+      const auto t1 = std::chrono::steady_clock::now();
+      T.grow_radii(h, c.needed);
+      r.seconds_geodesics += seconds_since(t1);
+      c = T.cells(h);
+    }
+    if (!c.certified) fail(ErrorCode::kNotConverged, "Riemannian OMT: the cells stay uncertified after 12 rounds of geodesics");
+    return c;
+  };
+  const auto t2 = std::chrono::steady_clock::now();
+  Eigen::VectorXd h = Eigen::VectorXd::Zero(k);
+  Cells cells = cells_at(h);
+  auto max_relative = [&](const Eigen::VectorXd& m) { return ((m - nu).array().abs() / nu.array()).maxCoeff(); };
+  auto relative_norm = [&](const Eigen::VectorXd& g) { return (g.array() / nu.array()).matrix().norm(); };
+  r.max_relative_error = max_relative(cells.mass);
+  // Kitagawa-Merigot-Thibert damping: every cell keeps at least eps0.
+  const double eps0 = 0.5 * std::min(nu.minCoeff(), cells.mass.minCoeff());
+  if (!(eps0 > 0)) {
+    Eigen::Index empty = 0;
+    cells.mass.minCoeff(&empty);
+    invalid("Riemannian OMT: site " + std::to_string(empty) +
+            " has an empty geodesic Voronoi cell (sites closer than the mesh resolves: subdivide more)");
+  }
+  Eigen::Index held = 0;
+  nu.maxCoeff(&held);  // F(h + constant) = F(h): one height is held
+  single_threaded_blas();
+  Factor llt;
+  llt.setMode(Eigen::CholmodSimplicialLLt);
+  llt.cholmod().print = 0;
+  double last_t = 1;
+  for (r.iterations = 0; k > 1 && r.iterations < opt.max_iterations && r.max_relative_error > opt.tolerance; ++r.iterations) {
+    const Eigen::VectorXd g = cells.mass - nu;
+    const Eigen::VectorXd dh = newton_direction(cells.sides, g, held, llt, r.iterations);
+    const double gnorm = relative_norm(g);
+    bool accepted = false;
+    for (double t = std::min(1.0, 4 * last_t); t > 1e-9 && !accepted; t *= 0.5) {
+      const Eigen::VectorXd trial = h + t * dh;
+      Cells c = cells_at(trial);
+      if (c.mass.minCoeff() < eps0) continue;
+      if (relative_norm(c.mass - nu) <= (1 - 0.5 * t) * gnorm || max_relative(c.mass) <= opt.tolerance) {
+        h = trial;
+        cells = std::move(c);
+        accepted = true;
+        last_t = t;
+      }
+    }
+    r.max_relative_error = max_relative(cells.mass);
+    if (opt.progress && !opt.progress(r.iterations + 1, r.max_relative_error))
+      fail(ErrorCode::kCancelled, "Riemannian OMT cancelled");
+    if (!accepted) {
+      ++r.iterations;
+      break;  // the round-off floor: no step improves any more
+    }
+  }
+  r.seconds_transport = seconds_since(t2);
+  r.converged = r.max_relative_error <= opt.tolerance;
+  r.h = h.array() - h.mean();
+  r.mass = cells.mass;
+  r.cost = cells.cost;
+  r.transport_cost = cells.cost.sum();
+  r.face_cell = std::move(cells.face_cell);
+  r.face_share = std::move(cells.face_share);
+  r.distance_rounds = T.rounds();
+  return r;
+}
+
+}  // namespace brenier::omt
