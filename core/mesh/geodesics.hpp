@@ -25,6 +25,12 @@ namespace brenier::mesh {
 ///      peak at the source itself).
 /// Both systems are factored by CHOLMOD in the constructor; distances() solves sources in
 /// blocks (a multi-column solve), the face and vertex loops in parallel.
+/// Accuracy against CGAL's exact geodesics, six sources each, error over the largest distance:
+/// mean 0.4 % on an icosphere (2,562 vertices), 0.9-1.2 % on lion-head and mannequin-devil,
+/// worst 7-10 % (far from the source, where the heat flow is under-resolved). Larger times
+/// (2-16 h^2) lowered the worst error but raised the mean; averaging with a Dirichlet heat
+/// flow (the paper's advice at boundaries) gained 0.1 % on lion-head for a third solve, and
+/// was left out.
 /// Precondition: a connected mesh whose faces have positive area (mesh::clean()).
 class HeatGeodesics {
  public:
@@ -33,8 +39,11 @@ class HeatGeodesics {
   HeatGeodesics(const HeatGeodesics&) = delete;
   HeatGeodesics& operator=(const HeatGeodesics&) = delete;
 
-  /// #V by sources.size(): the distance from each source point to every vertex.
-  Eigen::MatrixXd distances(const std::vector<SurfacePoint>& sources) const;
+  /// #V by sources.size(): the distance from each source point to every vertex. Not
+  /// reentrant: the solves reuse the object's buffers.
+  Eigen::MatrixXd distances(const std::vector<SurfacePoint>& sources);
+  /// The same into `out` (resized; a buffer of the same size is reused, not reallocated).
+  void distances(const std::vector<SurfacePoint>& sources, Eigen::MatrixXd& out);
 
  private:
   struct Impl;

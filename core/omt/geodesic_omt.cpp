@@ -44,9 +44,11 @@ mesh::SurfacePoint into_child(const mesh::SurfacePoint& p) {
 }
 
 // One site's stored squared distance at a vertex.
+// Single precision (1e-7 relative, far below the distances' own error): the lists are the
+// solver's largest memory.
 struct Near {
   int site;
-  double d2;
+  float d2;
 };
 
 // The pieces one face contributes: its cells' areas (times the face density), costs and the
@@ -66,6 +68,7 @@ struct Cells {
   Eigen::VectorXd face_share;
   bool certified = true;
   double needed = -std::numeric_limits<double>::infinity();  // the highest envelope of an uncertified face
+  double needed_diameter = 0;  // the largest uncertified face's diameter
 };
 
 // A convex polygon in the face's barycentric chart (s, t): x = a + s (b - a) + t (c - a);
@@ -107,82 +110,133 @@ class Transport {
       : m_(m), sites_(sites), rho_(rho), nu_(nu), method_(method) {
     const int nf = m.num_faces();
     area_ = mesh::face_areas(m);
-    for (int f = 0; f < nf; ++f)
+    face_diameter_.resize(nf);
+    for (int f = 0; f < nf; ++f) {
+      face_diameter_[f] = 0;
       for (int k = 0; k < 3; ++k)
-        diameter_ = std::max(diameter_, (m.V.row(m.F(f, k)) - m.V.row(m.F(f, (k + 1) % 3))).norm());
-    const double mean_rho = rho_.dot(area_) / area_.sum();
-    radius_.resize(static_cast<Eigen::Index>(sites.size()));
-    for (Eigen::Index i = 0; i < radius_.size(); ++i)
-      radius_[i] = 3 * std::sqrt(std::max(nu_[i], nu_.mean()) / (M_PI * mean_rho)) + 2 * diameter_;
+        face_diameter_[f] = std::max(face_diameter_[f], (m.V.row(m.F(f, k)) - m.V.row(m.F(f, (k + 1) % 3))).norm());
+    }
+    // Radii on the grid base * 1.25^level, so that the certificate groups the sites by a
+    // few levels: three cell radii (of the larger of the cell's target and the mean) plus
+    // two mean face diameters.
+    const double mean_rho = rho_.dot(area_) / area_.sum(), slack = 2 * face_diameter_.mean();
+    Eigen::VectorXd want(static_cast<Eigen::Index>(sites.size()));
+    for (Eigen::Index i = 0; i < want.size(); ++i)
+      want[i] = 3 * std::sqrt(std::max(nu_[i], nu_.mean()) / (M_PI * mean_rho)) + slack;
+    base_ = want.minCoeff();
+    level_.resize(sites.size());
+    for (Eigen::Index i = 0; i < want.size(); ++i) level_[static_cast<size_t>(i)] = level_for(want[i]);
     complete_.assign(sites.size(), 0);
     if (method_ == GeodesicMethod::kHeat) heat_ = std::make_unique<mesh::HeatGeodesics>(m_);
   }
 
-  // Alg. 4's geodesics from the sites `which` (all when empty), each kept within its radius;
-  // then the per-vertex lists are rebuilt from every site's.
+  // Alg. 4's geodesics from the sites `which` (all when empty), each kept within a reserve of
+  // 2.5 times its radius (a radius that grows within it needs no new geodesics); then the
+  // per-vertex lists.
   void compute_distances(std::vector<int> which = {}) {
     ++rounds_;
     const int nv = m_.num_vertices(), ns = static_cast<int>(sites_.size());
     if (which.empty())
       for (int i = 0; i < ns; ++i) which.push_back(i);
     kept_.resize(static_cast<size_t>(ns));
+    reserve_.resize(static_cast<size_t>(ns), 0);
+    farthest_.resize(static_cast<size_t>(ns), 0);
     constexpr int kBlock = 32;
+    Eigen::MatrixXd D;  // one block's distances, its buffer reused
     for (size_t first = 0; first < which.size(); first += kBlock) {
       const int b = static_cast<int>(std::min<size_t>(kBlock, which.size() - first));
       std::vector<mesh::SurfacePoint> from;
       for (int c = 0; c < b; ++c) from.push_back(sites_[static_cast<size_t>(which[first + static_cast<size_t>(c)])]);
-      Eigen::MatrixXd D(nv, b);
       if (heat_) {
-        D = heat_->distances(from);
+        heat_->distances(from, D);
       } else {
+        D.resize(nv, b);
 #pragma omp parallel for schedule(dynamic, 1)
         for (int c = 0; c < b; ++c) D.col(c) = mesh::exact_distances(m_, from[static_cast<size_t>(c)]);
       }
 #pragma omp parallel for schedule(dynamic, 1)
       for (int c = 0; c < b; ++c) {
-        const int i = which[first + static_cast<size_t>(c)];
-        complete_[static_cast<size_t>(i)] = D.col(c).maxCoeff() <= radius_[i];
-        auto& list = kept_[static_cast<size_t>(i)];
+        const size_t i = static_cast<size_t>(which[first + static_cast<size_t>(c)]);
+        reserve_[i] = 2.5 * radius(static_cast<Eigen::Index>(i));
+        farthest_[i] = D.col(c).maxCoeff();
+        auto& list = kept_[i];
         list.clear();
         for (int v = 0; v < nv; ++v)
-          if (D(v, c) <= radius_[i]) list.push_back({v, D(v, c) * D(v, c)});
+          if (D(v, c) <= reserve_[i]) list.push_back({v, static_cast<float>(D(v, c) * D(v, c))});
       }
     }
-    near_.assign(static_cast<size_t>(nv), {});
-    for (int i = 0; i < ns; ++i)  // in site order: each vertex's list sorted by site
-      for (const Near& e : kept_[static_cast<size_t>(i)]) near_[static_cast<size_t>(e.site)].push_back({i, e.d2});
+    index_vertices();
   }
 
-  // Where the certificate failed at heights h: the incomplete sites that could reach below
-  // the highest envelope `needed` get the radius that rules them out there, with a margin;
-  // their distances are recomputed.
-  void grow_radii(const Eigen::VectorXd& h, double needed) {
+  // The per-vertex lists of the sites within their radii (in site order: sorted by site).
+  void index_vertices() {
+    const int ns = static_cast<int>(sites_.size());
+    near_.assign(static_cast<size_t>(m_.num_vertices()), {});
+    for (int i = 0; i < ns; ++i) {
+      const double R = radius(i), R2 = R * R;
+      complete_[static_cast<size_t>(i)] = farthest_[static_cast<size_t>(i)] <= R;
+      for (const Kept& e : kept_[static_cast<size_t>(i)])
+        if (e.d2 <= R2) near_[static_cast<size_t>(e.vertex)].push_back({i, e.d2});
+    }
+  }
+
+  // Where the certificate failed at heights h (`needed`: the highest envelope of a face
+  // that failed, `diameter`: the largest such face's): the incomplete sites that could reach
+  // below it there move up the grid until they cannot, with a margin; those beyond their
+  // reserve get new geodesics.
+  void grow_radii(const Eigen::VectorXd& h, double needed, double diameter) {
     std::vector<int> grow;
-    for (Eigen::Index i = 0; i < radius_.size(); ++i) {
-      if (complete_[static_cast<size_t>(i)] || std::pow(std::max(0.0, radius_[i] - diameter_), 2) - h[i] > needed) continue;
-      radius_[i] = std::max(1.5 * radius_[i], 1.2 * (std::sqrt(std::max(0.0, needed + h[i])) + diameter_));
+    for (Eigen::Index i = 0; i < h.size(); ++i) {
+      const size_t si = static_cast<size_t>(i);
+      if (complete_[si] || std::pow(std::max(0.0, radius(i) - diameter), 2) - h[i] > needed) continue;
+      level_[si] = std::max(level_[si] + 1, level_for(1.2 * (std::sqrt(std::max(0.0, needed + h[i])) + diameter)));
       grow.push_back(static_cast<int>(i));
     }
     if (grow.empty())  // faces without candidates: every incomplete radius grows
-      for (Eigen::Index i = 0; i < radius_.size(); ++i)
+      for (Eigen::Index i = 0; i < h.size(); ++i)
         if (!complete_[static_cast<size_t>(i)]) {
-          radius_[i] *= 1.5;
+          ++level_[static_cast<size_t>(i)];
           grow.push_back(static_cast<int>(i));
         }
-    compute_distances(grow);
+    std::vector<int> recompute;
+    for (int i : grow)
+      if (radius(i) > reserve_[static_cast<size_t>(i)] && farthest_[static_cast<size_t>(i)] > reserve_[static_cast<size_t>(i)])
+        recompute.push_back(i);
+    ++grown_;
+    if (recompute.empty()) {
+      index_vertices();
+    } else {
+      compute_distances(recompute);
+    }
   }
   int rounds() const { return rounds_; }
+  int grown() const { return grown_; }
 
   Cells cells(const Eigen::VectorXd& h) const {
     const int nf = m_.num_faces(), ns = static_cast<int>(sites_.size());
-    // The certificate's bound: no site missing at a corner of a face reaches below it there.
-    double bound = std::numeric_limits<double>::infinity();
-    for (int j = 0; j < ns; ++j)
-      if (!complete_[static_cast<size_t>(j)])
-        bound = std::min(bound, std::pow(std::max(0.0, radius_[j] - diameter_), 2) - h[j]);
+    // The certificate: a site j missing at a corner of face T is at least R_j - diam T from
+    // every point of T, so its power distance there is at least (R_j - diam T)^2 - h_j; per
+    // radius level, the highest height of its incomplete sites.
+    std::vector<std::pair<double, double>> levels;  // radius, highest height
+    {
+      std::vector<double> top;
+      for (int j = 0; j < ns; ++j) {
+        if (complete_[static_cast<size_t>(j)]) continue;
+        const size_t l = static_cast<size_t>(level_[static_cast<size_t>(j)]);
+        if (top.size() <= l) top.resize(l + 1, -std::numeric_limits<double>::infinity());
+        top[l] = std::max(top[l], h[j]);
+      }
+      for (size_t l = 0; l < top.size(); ++l)
+        if (top[l] > -std::numeric_limits<double>::infinity()) levels.emplace_back(radius_at(static_cast<int>(l)), top[l]);
+    }
+    auto bound = [&levels](double diameter) {
+      double b = std::numeric_limits<double>::infinity();
+      for (const auto& [R, top] : levels) b = std::min(b, std::pow(std::max(0.0, R - diameter), 2) - top);
+      return b;
+    };
     std::vector<FacePieces> pieces(static_cast<size_t>(nf));
 #pragma omp parallel for schedule(dynamic, 512)
-    for (int f = 0; f < nf; ++f) pieces[static_cast<size_t>(f)] = face(f, h, bound);
+    for (int f = 0; f < nf; ++f) pieces[static_cast<size_t>(f)] = face(f, h, bound(face_diameter_[f]));
     Cells out;
     out.mass = Eigen::VectorXd::Zero(ns);
     out.cost = Eigen::VectorXd::Zero(ns);
@@ -191,7 +245,10 @@ class Transport {
     for (int f = 0; f < nf; ++f) {  // sums in face order: the same on any thread count
       const FacePieces& p = pieces[static_cast<size_t>(f)];
       out.certified = out.certified && p.certified;
-      if (!p.certified) out.needed = std::max(out.needed, p.envelope);
+      if (!p.certified) {
+        out.needed = std::max(out.needed, p.envelope);
+        out.needed_diameter = std::max(out.needed_diameter, face_diameter_[f]);
+      }
       double total = 0, best = -1;
       for (size_t k = 0; k < p.mass.size(); ++k) {
         out.mass[p.mass[k].first] += p.mass[k].second;
@@ -281,11 +338,22 @@ class Transport {
   const Eigen::VectorXd& rho_;  // per face
   const Eigen::VectorXd& nu_;
   GeodesicMethod method_;
-  Eigen::VectorXd area_, radius_;
-  double diameter_ = 0;  // the longest edge: the faces' diameter
+  double radius_at(int level) const { return base_ * std::pow(1.25, level); }
+  double radius(Eigen::Index i) const { return radius_at(level_[static_cast<size_t>(i)]); }
+  int level_for(double r) const { return std::max(0, static_cast<int>(std::ceil(std::log(r / base_) / std::log(1.25) - 1e-9))); }
+
+  Eigen::VectorXd area_, face_diameter_;  // per face; a face's diameter is its longest edge
+  double base_ = 0;                       // the radii's grid: base * 1.25^level
+  std::vector<int> level_;                // per site
   std::vector<char> complete_;  // site i's distances are kept everywhere
   std::vector<std::vector<Near>> near_;  // per vertex, sorted by site
-  std::vector<std::vector<Near>> kept_;  // per site: (vertex, d^2) within its radius
+  struct Kept {
+    int vertex;
+    float d2;  // single precision: 1e-7 relative, below the distances' own error
+  };
+  std::vector<std::vector<Kept>> kept_;  // per site: within its reserve
+  std::vector<double> reserve_, farthest_;  // per site: the reserve's radius, the farthest vertex's distance
+  int grown_ = 0;
   std::unique_ptr<mesh::HeatGeodesics> heat_;
   int rounds_ = 0;
 };
@@ -414,9 +482,9 @@ GeodesicOmtResult solve_geodesic_omt(const mesh::TriMesh& input, const std::vect
   // The cells at h, the distances recomputed with larger radii until certified.
   auto cells_at = [&](const Eigen::VectorXd& h) {
     Cells c = T.cells(h);
-    while (!c.certified && T.rounds() < 12) {
+    while (!c.certified && T.grown() < 12) {
       const auto t1 = std::chrono::steady_clock::now();
-      T.grow_radii(h, c.needed);
+      T.grow_radii(h, c.needed, c.needed_diameter);
       r.seconds_geodesics += seconds_since(t1);
       c = T.cells(h);
     }
