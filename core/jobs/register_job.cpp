@@ -188,7 +188,9 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
     out.target_points.push_back(c);
     out.morph.V.row(j) = out.rows.back().position.transpose();
   }
-  const int morph_flips = registration::flipped_morph_faces(out.morph.F, out.morph.V, target.mesh);
+  std::vector<int> corner_face;
+  for (const auto& c : out.target_points) corner_face.push_back(c.first);
+  const int morph_flips = registration::flipped_morph_faces(out.morph.F, out.morph.V, target.mesh, corner_face);
 
   nlohmann::json& j = out.report;
   j["domain"] = domain_name(r.domain);

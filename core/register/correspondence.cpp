@@ -86,7 +86,12 @@ mesh::Vertices positions(const mesh::TriMesh& mesh, const std::vector<SurfacePoi
   return X;
 }
 
-int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const mesh::TriMesh& target) {
+int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const mesh::TriMesh& target,
+                        const std::vector<int>& corner_face) {
+  auto unit_normal = [&](int t) -> Eigen::Vector3d {
+    const Eigen::Vector3d ta = target.V.row(target.F(t, 0)), tb = target.V.row(target.F(t, 1)), tc = target.V.row(target.F(t, 2));
+    return (tb - ta).cross(tc - ta).normalized();
+  };
   mesh::Vertices centroids(F.rows(), 3);
   for (Eigen::Index f = 0; f < F.rows(); ++f)
     centroids.row(f) = (morph.row(F(f, 0)) + morph.row(F(f, 1)) + morph.row(F(f, 2))) / 3;
@@ -94,10 +99,15 @@ int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const
   int flipped = 0;
   for (Eigen::Index f = 0; f < F.rows(); ++f) {
     const Eigen::Vector3d a = morph.row(F(f, 0)), b = morph.row(F(f, 1)), c = morph.row(F(f, 2));
-    const int t = near[static_cast<size_t>(f)].face;
-    const Eigen::Vector3d ta = target.V.row(target.F(t, 0)), tb = target.V.row(target.F(t, 1)), tc = target.V.row(target.F(t, 2));
+    const Eigen::Vector3d n = (b - a).cross(c - a);
     // Faces collapsed onto a point or a line (zero normal) are not counted.
-    if ((b - a).cross(c - a).dot((tb - ta).cross(tc - ta)) < 0) ++flipped;
+    bool against = n.dot(unit_normal(near[static_cast<size_t>(f)].face)) < 0;
+    if (against && !corner_face.empty()) {
+      Eigen::Vector3d corners = Eigen::Vector3d::Zero();
+      for (int k = 0; k < 3; ++k) corners += unit_normal(corner_face[static_cast<size_t>(F(f, k))]);
+      against = n.dot(corners) < 0;
+    }
+    flipped += against;
   }
   return flipped;
 }

@@ -24,8 +24,14 @@ std::vector<SurfacePoint> locate(const mesh::Faces& F, const mesh::Vertices& dom
 mesh::Vertices positions(const mesh::TriMesh& mesh, const std::vector<SurfacePoint>& points);
 
 /// Faces of a morph (the source's faces over the positions `morph` on the target surface)
-/// whose normal points against the target's at the point of the target nearest the face's
-/// centroid: where a registration folds on the surface.
-int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const mesh::TriMesh& target);
+/// that turn over on the target: whose normal points against the target's normal at the
+/// point of the target nearest the face's centroid and, given `corner_face` (per morph
+/// vertex, the target face it lies on), also against the sum of the unit normals of the faces
+/// under its three corners. A fold reverses the triangle against every estimate of the
+/// surface's normal under it; the nearest face alone lies on one flank of a ridge or a curl
+/// and counted unfolded chords (lion-head's curls), the corner faces alone are ambiguous at a
+/// vertex (any of its faces holds it).
+int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const mesh::TriMesh& target,
+                        const std::vector<int>& corner_face = {});
 
 }  // namespace brenier::registration
