@@ -15,6 +15,7 @@
 #include "mesh/geometry.hpp"
 #include "mesh/shapes.hpp"
 #include "mesh/topology.hpp"
+#include "omt/surface_cells.hpp"
 
 namespace brenier::omt {
 
@@ -186,13 +187,13 @@ class Transport {
   // reserve get new geodesics.
   void grow_radii(const Eigen::VectorXd& h, double needed, double diameter) {
     std::vector<int> grow;
-    for (Eigen::Index i = 0; i < h.size(); ++i) {
+    for (Eigen::Index i = 0; i < h.size() && std::isfinite(needed); ++i) {
       const size_t si = static_cast<size_t>(i);
       if (complete_[si] || std::pow(std::max(0.0, radius(i) - diameter), 2) - h[i] > needed) continue;
       level_[si] = std::max(level_[si] + 1, level_for(1.2 * (std::sqrt(std::max(0.0, needed + h[i])) + diameter)));
       grow.push_back(static_cast<int>(i));
     }
-    if (grow.empty())  // faces without candidates: every incomplete radius grows
+    if (grow.empty())  // faces without candidates (needed is infinite): every incomplete radius grows
       for (Eigen::Index i = 0; i < h.size(); ++i)
         if (!complete_[static_cast<size_t>(i)]) {
           ++level_[static_cast<size_t>(i)];
@@ -211,6 +212,17 @@ class Transport {
   }
   int rounds() const { return rounds_; }
   int grown() const { return grown_; }
+
+  // Radii for a start h0 whose lower envelope is estimated at `envelope`: each site reaches
+  // where its power distance could still be below it, with a margin (the estimate is
+  // chordal, and geodesics are longer); before compute_distances().
+  void plan_radii(const Eigen::VectorXd& h0, double envelope) {
+    const double slack = 2 * face_diameter_.mean();
+    for (Eigen::Index i = 0; i < h0.size(); ++i) {
+      const double want = 1.3 * std::sqrt(std::max(0.0, envelope + h0[i])) + slack;
+      level_[static_cast<size_t>(i)] = std::max(level_[static_cast<size_t>(i)], level_for(want));
+    }
+  }
 
   Cells cells(const Eigen::VectorXd& h) const {
     const int nf = m_.num_faces(), ns = static_cast<int>(sites_.size());
@@ -399,6 +411,37 @@ void check_input(const mesh::TriMesh& m, const std::vector<mesh::SurfacePoint>& 
 
 using Factor = Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>>;
 
+// A start for the heights: the transport of the same measure to the same sites with the
+// squared Euclidean (chordal) cost restricted to the surface (surface_cells.hpp, solved to 5 %
+// per cell), whose cells are close to the geodesic ones where the cells are small against the
+// surface's curvature: its power weights |y_i|^2 + 2 h_i are the geodesic heights' start.
+// Also the start's lower envelope max_x min_i (|x - y_i|^2 - h0_i) over the vertices, which
+// sizes the distance radii. False when the chordal solve fails (then the start is 0).
+bool chordal_start(const mesh::TriMesh& m, const Eigen::VectorXd& rho, const mesh::Vertices& y, const Eigen::VectorXd& nu,
+                   Eigen::VectorXd& h0, double& envelope) {
+  SurfaceDensity S;
+  S.vertices = m.V;
+  S.faces = m.F;
+  S.density = rho;
+  OmtOptions o;
+  o.tolerance = 0.05;
+  o.max_iterations = 30;
+  o.initial_h = -0.5 * y.rowwise().squaredNorm();  // the Voronoi diagram of the sites (h = 0 is, only on a sphere)
+  try {
+    const SurfaceOmtResult c = solve_surface_omt(S, y, nu, o);
+    if (c.cells.empty_cells > 0) return false;
+    h0 = y.rowwise().squaredNorm() + 2 * c.h;
+  } catch (const Error&) {
+    return false;
+  }
+  h0.array() -= h0.mean();
+  envelope = -std::numeric_limits<double>::infinity();
+#pragma omp parallel for reduction(max : envelope)
+  for (Eigen::Index v = 0; v < m.V.rows(); ++v)
+    envelope = std::max(envelope, ((y.rowwise() - m.V.row(v)).rowwise().squaredNorm() - h0).minCoeff());
+  return true;
+}
+
 // The Newton direction: H dh = -g with H = dm/dh, the weighted graph Laplacian of the cells'
 // sides (dm_i/dh_j = -w_ij, dm_i/dh_i = sum_j w_ij), site `held` fixed (F is invariant under
 // h + constant).
@@ -477,6 +520,12 @@ GeodesicOmtResult solve_geodesic_omt(const mesh::TriMesh& input, const std::vect
 
   auto t0 = std::chrono::steady_clock::now();
   Transport T(r.mesh, r.sites, rho, nu, opt.geodesics);
+  Eigen::VectorXd h = Eigen::VectorXd::Zero(k);
+  double envelope = 0;
+  if (k > 1 && chordal_start(r.mesh, rho, at, nu, h, envelope)) {
+    r.chordal_start = true;
+    T.plan_radii(h, envelope);
+  }
   T.compute_distances();
   r.seconds_geodesics = seconds_since(t0);
   // The cells at h, the distances recomputed with larger radii until certified.
@@ -484,7 +533,7 @@ GeodesicOmtResult solve_geodesic_omt(const mesh::TriMesh& input, const std::vect
     Cells c = T.cells(h);
     while (!c.certified && T.grown() < 12) {
       const auto t1 = std::chrono::steady_clock::now();
-      T.grow_radii(h, c.needed, c.needed_diameter);
+        T.grow_radii(h, c.needed, c.needed_diameter);
       r.seconds_geodesics += seconds_since(t1);
       c = T.cells(h);
     }
@@ -492,8 +541,14 @@ GeodesicOmtResult solve_geodesic_omt(const mesh::TriMesh& input, const std::vect
     return c;
   };
   const auto t2 = std::chrono::steady_clock::now();
-  Eigen::VectorXd h = Eigen::VectorXd::Zero(k);
   Cells cells = cells_at(h);
+  // Where the chordal start leaves a geodesic cell empty, it is scaled toward the Voronoi
+  // diagram (h = 0) until none is.
+  for (int halving = 0; r.chordal_start && cells.mass.minCoeff() <= 0; ++halving) {
+    h *= halving < 3 ? 0.5 : 0.0;
+    r.chordal_start = halving < 3;
+    cells = cells_at(h);
+  }
   auto max_relative = [&](const Eigen::VectorXd& m) { return ((m - nu).array().abs() / nu.array()).maxCoeff(); };
   auto relative_norm = [&](const Eigen::VectorXd& g) { return (g.array() / nu.array()).matrix().norm(); };
   r.max_relative_error = max_relative(cells.mass);

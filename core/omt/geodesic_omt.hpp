@@ -62,6 +62,7 @@ struct GeodesicOmtResult {
   double max_relative_error = 0;
   bool converged = false;
   int distance_rounds = 0;  // times the distances were computed (radii grown: > 1)
+  bool chordal_start = false;  // Newton started from the chordal transport's heights
   double seconds_geodesics = 0, seconds_transport = 0;
 };
 

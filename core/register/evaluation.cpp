@@ -100,23 +100,93 @@ std::vector<SurfacePoint> nearest_points(const mesh::TriMesh& on, const mesh::Ve
   return locate(on.F, on.V, points, false);
 }
 
+namespace {
+
+// The faces of m that may meet the ball of radius r around x (a vertex within r plus the
+// face's longest edge), as a mesh of their own; `face_of[f]` is the patch's face f in m.
+mesh::TriMesh ball_patch(const mesh::TriMesh& m, const Eigen::Vector3d& x, double r, std::vector<int>& face_of) {
+  std::vector<int> vertex_of(static_cast<size_t>(m.num_vertices()), -1);
+  std::vector<int> kept_vertices;
+  face_of.clear();
+  for (int f = 0; f < m.num_faces(); ++f) {
+    double near = 1e300, edge = 0;
+    for (int k = 0; k < 3; ++k) {
+      near = std::min(near, (m.V.row(m.F(f, k)).transpose() - x).norm());
+      edge = std::max(edge, (m.V.row(m.F(f, k)) - m.V.row(m.F(f, (k + 1) % 3))).norm());
+    }
+    if (near > r + edge) continue;
+    face_of.push_back(f);
+    for (int k = 0; k < 3; ++k)
+      if (vertex_of[static_cast<size_t>(m.F(f, k))] < 0) {
+        vertex_of[static_cast<size_t>(m.F(f, k))] = static_cast<int>(kept_vertices.size());
+        kept_vertices.push_back(m.F(f, k));
+      }
+  }
+  mesh::TriMesh p;
+  p.V.resize(static_cast<Eigen::Index>(kept_vertices.size()), 3);
+  for (size_t i = 0; i < kept_vertices.size(); ++i) p.V.row(static_cast<Eigen::Index>(i)) = m.V.row(kept_vertices[i]);
+  p.F.resize(static_cast<Eigen::Index>(face_of.size()), 3);
+  for (size_t f = 0; f < face_of.size(); ++f)
+    for (int k = 0; k < 3; ++k) p.F(static_cast<Eigen::Index>(f), k) = vertex_of[static_cast<size_t>(m.F(face_of[f], k))];
+  return p;
+}
+
+// The exact geodesic distance between a and b on m, both ways, the shorter kept: CGAL 5.5
+// returns a too long path one way on some flat configurations (a regular grid, from (0.1,
+// 0.1) to (0.9, 0.8): 1.169 for 1.063, the other way exact); each way's answer is the
+// length of a path on the surface, so the shorter is the nearer bound.
+double exact_between(const mesh::TriMesh& m, const SurfacePoint& a, const SurfacePoint& b) {
+  const SM sm = to_surface_mesh(m);
+  const auto la = mesh::cgal::location(sm, m, a), lb = mesh::cgal::location(sm, m, b);
+  Paths ab(sm), ba(sm);
+  ab.add_source_point(la.first, la.second);
+  ba.add_source_point(lb.first, lb.second);
+  return std::min(ab.shortest_distance_to_source_points(lb.first, lb.second).first,
+                  ba.shortest_distance_to_source_points(la.first, la.second).first);
+}
+
+}  // namespace
+
 std::vector<double> geodesic_distances(const mesh::TriMesh& m, const std::vector<SurfacePoint>& from,
                                        const std::vector<SurfacePoint>& to) {
-  const SM sm = to_surface_mesh(m);
-  auto cgal_bary = [&](const SurfacePoint& p) { return mesh::cgal::location(sm, m, p); };
+  // On a patch: the faces that may meet the ball of radius r around the first point, r
+  // starting at twice the straight distance. A path of length L <= r from there stays in
+  // the ball, so when the patch's distance L is at most r it is the whole mesh's (the mesh's
+  // shortest path is no longer than L, so it lies in the ball too); otherwise r doubles. The
+  // whole mesh is the fallback (a patch that is not a manifold, or r past the mesh's size).
+  // Pairs run in parallel, each with its own CGAL objects.
   std::vector<double> d(from.size(), 0);
+  const double diagonal = (m.V.colwise().maxCoeff() - m.V.colwise().minCoeff()).norm();
+#pragma omp parallel for schedule(dynamic, 4)
   for (long i = 0; i < static_cast<long>(from.size()); ++i) {
-    // Both ways, the shorter kept: CGAL 5.5 returns a too long path one way on some flat
-    // configurations (a regular grid, from (0.1, 0.1) to (0.9, 0.8): 1.169 for 1.063, the
-    // other way exact); each way's answer is the length of a path on the surface, so the
-    // shorter is the nearer bound.
-    const auto a = cgal_bary(from[static_cast<size_t>(i)]), b = cgal_bary(to[static_cast<size_t>(i)]);
-    Paths ab(sm), ba(sm);
-    ab.add_source_point(a.first, a.second);
-    ba.add_source_point(b.first, b.second);
-    d[static_cast<size_t>(i)] = std::min(ab.shortest_distance_to_source_points(b.first, b.second).first,
-                                         ba.shortest_distance_to_source_points(a.first, a.second).first);
+    const SurfacePoint& a = from[static_cast<size_t>(i)];
+    const SurfacePoint& b = to[static_cast<size_t>(i)];
+    const Eigen::Vector3d pa = positions(m, {a}).row(0).transpose(), pb = positions(m, {b}).row(0).transpose();
+    double r = std::max(2 * (pa - pb).norm(), 1e-9 * diagonal), found = -1;
+    std::vector<int> face_of;
+    for (; r < diagonal && found < 0; r *= 2) {
+      const mesh::TriMesh patch = ball_patch(m, pa, r, face_of);
+      auto in_patch = [&](const SurfacePoint& p) -> SurfacePoint {
+        const auto it = std::lower_bound(face_of.begin(), face_of.end(), p.face);
+        return {it != face_of.end() && *it == p.face ? static_cast<int>(it - face_of.begin()) : -1, p.bary};
+      };
+      const SurfacePoint qa = in_patch(a), qb = in_patch(b);
+      if (qa.face < 0 || qb.face < 0) continue;
+      try {
+        const double L = exact_between(patch, qa, qb);
+        if (L <= r) found = L;
+      } catch (const Error&) {
+        break;  // not a manifold patch: the whole mesh
+      }
+    }
+    try {
+      d[static_cast<size_t>(i)] = found >= 0 ? found : exact_between(m, a, b);
+    } catch (const Error&) {
+      d[static_cast<size_t>(i)] = std::nan("");  // an exception may not leave the parallel loop
+    }
   }
+  for (size_t i = 0; i < d.size(); ++i)
+    if (std::isnan(d[i])) fail(ErrorCode::kInternal, "geodesic_distances: pair " + std::to_string(i) + " has no CGAL location");
   return d;
 }
 

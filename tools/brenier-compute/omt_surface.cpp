@@ -127,6 +127,7 @@ int run_omt_surface(OmtSurfaceOptions o) {
   j["sites"] = sites.size();
   j["geodesics"] = o.geodesics;
   j["distance_rounds"] = r.distance_rounds;
+  j["chordal_start"] = r.chordal_start;
   j["converged"] = r.converged;
   j["iterations"] = r.iterations;
   j["max_relative_error"] = r.max_relative_error;
