@@ -16,7 +16,10 @@
 //   F(h) = int_M min_i (d_i^2 - h_i) dmu + sum_i h_i nu_i,   grad F = nu - mu(W(h)),
 // whose Hessian is minus the weighted graph Laplacian of the cells' common sides,
 //   -dm_i/dh_j = int_{W_i ∩ W_j} rho / |grad(d_i^2 - d_j^2)| ds  (i != j),
-// with Kitagawa-Merigot-Thibert damping (every cell keeps a share of its mass).
+// with Kitagawa-Merigot-Thibert damping (every cell keeps a share of its mass). The start is
+// the chordal transport's heights (the squared Euclidean cost on the same surface,
+// surface_cells.hpp), scaled toward the Voronoi diagram where it would leave a geodesic cell
+// empty.
 //
 // Storage. Each site keeps its distances only within a radius R_i of it (a few cells);
 // a face's candidate sites are those kept at all three of its corners. The radii are
