@@ -475,15 +475,13 @@ Eigen::VectorXd newton_direction(const std::vector<DualEdge>& sides, const Eigen
   return dh;
 }
 
-}  // namespace
-
-GeodesicOmtResult solve_geodesic_omt(const mesh::TriMesh& input, const std::vector<mesh::SurfacePoint>& input_sites,
-                                     const Eigen::VectorXd& masses, const Eigen::VectorXd& vertex_density,
-                                     const GeodesicOmtOptions& opt) {
-  check_input(input, input_sites, masses, vertex_density);
-  if (!(opt.tolerance > 0)) invalid("Riemannian OMT: the tolerance must be positive");
+// The problem on the working mesh: the subdivisions (opt's, or the fewest that give
+// faces_per_cell faces per site), the mesh and its per-face density, the sites on it and
+// their positions, and the targets scaled to the source's mass. Refuses two sites at one point.
+mesh::Vertices prepare(const mesh::TriMesh& input, const std::vector<mesh::SurfacePoint>& input_sites,
+                       const Eigen::VectorXd& masses, const Eigen::VectorXd& vertex_density,
+                       const GeodesicOmtOptions& opt, GeodesicOmtResult& r, Eigen::VectorXd& rho) {
   const int k = static_cast<int>(input_sites.size());
-  GeodesicOmtResult r;
   r.subdivisions = opt.subdivisions;
   if (r.subdivisions < 0) {
     r.subdivisions = 0;
@@ -493,29 +491,44 @@ GeodesicOmtResult solve_geodesic_omt(const mesh::TriMesh& input, const std::vect
       ++r.subdivisions;
   }
   if (r.subdivisions > 6) invalid("Riemannian OMT: at most 6 subdivisions");
-  Eigen::VectorXd rho;
   subdivide(input, vertex_density.size() ? vertex_density : Eigen::VectorXd::Ones(input.num_vertices()),
             r.subdivisions, r.mesh, rho);
   r.sites = input_sites;
   for (int l = 0; l < r.subdivisions; ++l)
     for (auto& p : r.sites) p = into_child(p);
-  // Two sites in one point: their cells could not be told apart.
-  const mesh::Vertices at = [&] {
-    mesh::Vertices X(k, 3);
-    for (int i = 0; i < k; ++i) {
-      const auto& p = r.sites[static_cast<size_t>(i)];
-      X.row(i).setZero();
-      for (int c = 0; c < 3; ++c) X.row(i) += p.bary[c] * r.mesh.V.row(r.mesh.F(p.face, c));
-    }
-    return X;
-  }();
+  mesh::Vertices at(k, 3);
+  for (int i = 0; i < k; ++i) {
+    const auto& p = r.sites[static_cast<size_t>(i)];
+    at.row(i).setZero();
+    for (int c = 0; c < 3; ++c) at.row(i) += p.bary[c] * r.mesh.V.row(r.mesh.F(p.face, c));
+  }
+  // Two sites in one point: their cells could not be told apart. Sorted by x, each site is
+  // compared with those within the resolution in x only.
   const Eigen::VectorXd area = mesh::face_areas(r.mesh);
   const double mu = rho.dot(area), resolution = 1e-9 * std::sqrt(area.sum());
-  for (int i = 0; i < k; ++i)
-    for (int j = i + 1; j < k; ++j)
-      if ((at.row(i) - at.row(j)).norm() <= resolution)
-        invalid("Riemannian OMT: sites " + std::to_string(i) + " and " + std::to_string(j) + " are at one point");
+  std::vector<int> order(static_cast<size_t>(k));
+  for (int i = 0; i < k; ++i) order[static_cast<size_t>(i)] = i;
+  std::sort(order.begin(), order.end(), [&](int a, int b) { return at(a, 0) < at(b, 0); });
+  for (size_t x = 0; x < order.size(); ++x)
+    for (size_t y = x + 1; y < order.size() && at(order[y], 0) - at(order[x], 0) <= resolution; ++y)
+      if ((at.row(order[x]) - at.row(order[y])).norm() <= resolution)
+        invalid("Riemannian OMT: sites " + std::to_string(std::min(order[x], order[y])) + " and " +
+                std::to_string(std::max(order[x], order[y])) + " are at one point");
   r.target = masses.size() ? Eigen::VectorXd(masses * (mu / masses.sum())) : Eigen::VectorXd::Constant(k, mu / k);
+  return at;
+}
+
+}  // namespace
+
+GeodesicOmtResult solve_geodesic_omt(const mesh::TriMesh& input, const std::vector<mesh::SurfacePoint>& input_sites,
+                                     const Eigen::VectorXd& masses, const Eigen::VectorXd& vertex_density,
+                                     const GeodesicOmtOptions& opt) {
+  check_input(input, input_sites, masses, vertex_density);
+  if (!(opt.tolerance > 0)) invalid("Riemannian OMT: the tolerance must be positive");
+  const int k = static_cast<int>(input_sites.size());
+  GeodesicOmtResult r;
+  Eigen::VectorXd rho;
+  const mesh::Vertices at = prepare(input, input_sites, masses, vertex_density, opt, r, rho);
   const Eigen::VectorXd& nu = r.target;
 
   auto t0 = std::chrono::steady_clock::now();
