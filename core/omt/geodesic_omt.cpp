@@ -15,6 +15,7 @@
 #include "mesh/geometry.hpp"
 #include "mesh/shapes.hpp"
 #include "mesh/topology.hpp"
+#include "omt/newton_step.hpp"
 #include "omt/surface_cells.hpp"
 
 namespace brenier::omt {
@@ -409,7 +410,6 @@ void check_input(const mesh::TriMesh& m, const std::vector<mesh::SurfacePoint>& 
   }
 }
 
-using Factor = Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>>;
 
 // A start for the heights: the transport of the same measure to the same sites with the
 // squared Euclidean (chordal) cost restricted to the surface (surface_cells.hpp, solved to 5 %
@@ -442,38 +442,6 @@ bool chordal_start(const mesh::TriMesh& m, const Eigen::VectorXd& rho, const mes
   return true;
 }
 
-// The Newton direction: H dh = -g with H = dm/dh, the weighted graph Laplacian of the cells'
-// sides (dm_i/dh_j = -w_ij, dm_i/dh_i = sum_j w_ij), site `held` fixed (F is invariant under
-// h + constant).
-Eigen::VectorXd newton_direction(const std::vector<DualEdge>& sides, const Eigen::VectorXd& g, Eigen::Index held,
-                                 Factor& llt, int iteration) {
-  const Eigen::Index k = g.size();
-  auto slot = [held](Eigen::Index i) { return i < held ? i : i - 1; };
-  std::vector<Eigen::Triplet<double>> entries;
-  Eigen::VectorXd diag = Eigen::VectorXd::Zero(k);
-  for (const DualEdge& e : sides) {
-    diag[e.i] += e.length;
-    diag[e.j] += e.length;
-    if (e.i == held || e.j == held) continue;
-    entries.emplace_back(slot(e.i), slot(e.j), -e.length);
-    entries.emplace_back(slot(e.j), slot(e.i), -e.length);
-  }
-  for (Eigen::Index i = 0; i < k; ++i)
-    if (i != held) entries.emplace_back(slot(i), slot(i), diag[i]);
-  Eigen::SparseMatrix<double> H(k - 1, k - 1);
-  H.setFromTriplets(entries.begin(), entries.end());
-  llt.compute(H);
-  if (llt.info() != Eigen::Success)
-    fail(ErrorCode::kNotConverged, "Riemannian OMT: the Hessian is singular at iteration " + std::to_string(iteration));
-  Eigen::VectorXd rhs(k - 1);
-  for (Eigen::Index i = 0; i < k; ++i)
-    if (i != held) rhs[slot(i)] = -g[i];
-  const Eigen::VectorXd d = llt.solve(rhs);
-  Eigen::VectorXd dh = Eigen::VectorXd::Zero(k);
-  for (Eigen::Index i = 0; i < k; ++i)
-    if (i != held) dh[i] = d[slot(i)];
-  return dh;
-}
 
 // The problem on the working mesh: the subdivisions (opt's, or the fewest that give
 // faces_per_cell faces per site), the mesh and its per-face density, the sites on it and
@@ -576,13 +544,16 @@ GeodesicOmtResult solve_geodesic_omt(const mesh::TriMesh& input, const std::vect
   Eigen::Index held = 0;
   nu.maxCoeff(&held);  // F(h + constant) = F(h): one height is held
   single_threaded_blas();
-  Factor llt;
+  detail::NewtonFactor llt;
   llt.setMode(Eigen::CholmodSimplicialLLt);
   llt.cholmod().print = 0;
   double last_t = 1;
   for (r.iterations = 0; k > 1 && r.iterations < opt.max_iterations && r.max_relative_error > opt.tolerance; ++r.iterations) {
     const Eigen::VectorXd g = cells.mass - nu;
-    const Eigen::VectorXd dh = newton_direction(cells.sides, g, held, llt, r.iterations);
+    const std::optional<Eigen::VectorXd> step = detail::newton_direction(cells.sides, g, held, llt);
+    if (!step)
+      fail(ErrorCode::kNotConverged, "Riemannian OMT: the Hessian is singular at iteration " + std::to_string(r.iterations));
+    const Eigen::VectorXd& dh = *step;
     const double gnorm = relative_norm(g);
     bool accepted = false;
     for (double t = std::min(1.0, 4 * last_t); t > 1e-9 && !accepted; t *= 0.5) {

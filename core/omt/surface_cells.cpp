@@ -19,6 +19,7 @@
 #include "common/error.hpp"
 #include "common/parallel.hpp"
 #include "omt/coarse_to_fine.hpp"
+#include "omt/newton_step.hpp"
 
 namespace brenier::omt {
 
@@ -399,9 +400,8 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
                                        " sites have empty cells on the surface at the start");
   int held = 0;
   nu.maxCoeff(&held);  // its height is held: the energy is invariant under h + constant
-  auto slot = [held](int i) { return i < held ? i : i - 1; };
   single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
-  Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>> llt;
+  detail::NewtonFactor llt;
   llt.setMode(Eigen::CholmodSimplicialLLt);
   llt.cholmod().print = 0;
   double last_t = 1;
@@ -417,30 +417,11 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
     // The Jacobian of the masses (eq. 3.28 on the surface): the weighted graph Laplacian of
     // the cells' sides, dm_i/dh_j = -w_ij, dm_i/dh_i = sum_j w_ij; without the held height.
     const Eigen::VectorXd g = r.cells.mass - nu;
-    std::vector<Eigen::Triplet<double>> entries;
-    Eigen::VectorXd diag = Eigen::VectorXd::Zero(n);
-    for (const DualEdge& e : r.cells.edges) {
-      diag[e.i] += e.length;
-      diag[e.j] += e.length;
-      if (e.i == held || e.j == held) continue;
-      entries.emplace_back(slot(e.i), slot(e.j), -e.length);
-      entries.emplace_back(slot(e.j), slot(e.i), -e.length);
-    }
-    for (int i = 0; i < n; ++i)
-      if (i != held) entries.emplace_back(slot(i), slot(i), diag[i]);
-    Eigen::SparseMatrix<double> H(n - 1, n - 1);
-    H.setFromTriplets(entries.begin(), entries.end());
-    llt.compute(H);
-    if (llt.info() != Eigen::Success)
+    const std::optional<Eigen::VectorXd> step = detail::newton_direction(r.cells.edges, g, held, llt);
+    if (!step)
       fail(ErrorCode::kNotConverged, "the surface transport's Hessian is singular at iteration " +
                                          std::to_string(r.iterations) + " (a cell without neighbours)");
-    Eigen::VectorXd rhs(n - 1);
-    for (int i = 0; i < n; ++i)
-      if (i != held) rhs[slot(i)] = -g[i];
-    const Eigen::VectorXd d = llt.solve(rhs);
-    Eigen::VectorXd dh = Eigen::VectorXd::Zero(n);
-    for (int i = 0; i < n; ++i)
-      if (i != held) dh[i] = d[slot(i)];
+    const Eigen::VectorXd& dh = *step;
     // The dual gap test (OmtOptions::dual_gap_tolerance), as on the disk: the dual D(h) is
     // concave with gradient -2 g and Hessian -2 H, so the Newton step's predicted rise of D
     // to its maximum is -g . dh; once that is within the tolerance of D, the cost is known.

@@ -1,6 +1,7 @@
 """Shared helpers of the command-line contract tests: run the tool, count checks, and end
 with the 'N passed, N failed' line CI reads."""
 import math
+import os
 import subprocess
 import sys
 
@@ -25,6 +26,14 @@ class Checks:
     def finish(self):
         print(f"{self.passed} passed, {self.failed} failed")
         sys.exit(1 if self.failed else 0)
+
+
+def write_lines(directory, name, lines):
+    """Writes `lines` (any values, one per line) to directory/name; returns the path."""
+    path = os.path.join(directory, name)
+    with open(path, "w") as f:
+        f.write("\n".join(str(x) for x in lines) + "\n")
+    return path
 
 
 def read_off(path):

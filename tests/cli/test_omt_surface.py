@@ -13,7 +13,7 @@ import os
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from clitest import Checks, read_off  # noqa: E402
+from clitest import Checks, read_off, write_lines  # noqa: E402
 
 exe, data, work = sys.argv[1:4]
 T = Checks(exe)
@@ -22,10 +22,7 @@ check, run = T.check, T.run
 
 
 def write(name, lines):
-    path = os.path.join(work, name)
-    with open(path, "w") as f:
-        f.write("\n".join(str(x) for x in lines) + "\n")
-    return path
+    return write_lines(work, name, lines)
 
 
 lion = os.path.join(data, "lion-head.off")

@@ -43,10 +43,20 @@ std::vector<mesh::SurfacePoint> place_sites(const mesh::CleanMesh& cm, const std
       corner_face[static_cast<size_t>(m.F(f, k))] = f;
       corner[static_cast<size_t>(m.F(f, k))] = k;
     }
+  // Only the point sites are located (one AABB tree for all of them); near[i] is entry i's.
+  std::vector<size_t> point_entries;
+  for (size_t i = 0; i < entries.size(); ++i)
+    if (entries[i].vertex < 0) point_entries.push_back(i);
   mesh::Vertices points(static_cast<Eigen::Index>(entries.size()), 3);
+  mesh::Vertices query(static_cast<Eigen::Index>(point_entries.size()), 3);
   for (size_t i = 0; i < entries.size(); ++i)
     points.row(static_cast<Eigen::Index>(i)) << entries[i].point[0], entries[i].point[1], entries[i].point[2];
-  const std::vector<mesh::SurfacePoint> near = registration::locate(m.F, m.V, points, false);
+  for (size_t q = 0; q < point_entries.size(); ++q) query.row(static_cast<Eigen::Index>(q)) = points.row(static_cast<Eigen::Index>(point_entries[q]));
+  std::vector<mesh::SurfacePoint> near(entries.size());
+  if (!point_entries.empty()) {
+    const std::vector<mesh::SurfacePoint> found = registration::locate(m.F, m.V, query, false);
+    for (size_t q = 0; q < point_entries.size(); ++q) near[point_entries[q]] = found[q];
+  }
   const double diagonal = (m.V.colwise().maxCoeff() - m.V.colwise().minCoeff()).norm();
   std::vector<mesh::SurfacePoint> out;
   for (size_t i = 0; i < entries.size(); ++i) {
