@@ -394,8 +394,8 @@ void check_input(const mesh::TriMesh& m, const std::vector<mesh::SurfacePoint>& 
   if (k < 1) invalid("Riemannian OMT: no sites");
   if (masses.size() != 0 && masses.size() != k)
     invalid("Riemannian OMT: " + std::to_string(masses.size()) + " masses for " + std::to_string(k) + " sites");
-  if (masses.size() != 0 && (!(masses.array() > 0).all() || !masses.allFinite()))
-    invalid("Riemannian OMT: the masses must be positive finite numbers");
+  if (masses.size() != 0 && (!(masses.array() > 0).all() || !masses.allFinite() || !std::isfinite(masses.sum())))
+    invalid("Riemannian OMT: the masses must be positive finite numbers with a finite sum");
   if (density.size() != 0 && density.size() != m.num_vertices())
     invalid("Riemannian OMT: " + std::to_string(density.size()) + " density values for " +
             std::to_string(m.num_vertices()) + " vertices");
@@ -458,7 +458,9 @@ mesh::Vertices prepare(const mesh::TriMesh& input, const std::vector<mesh::Surfa
          faces *= 4)
       ++r.subdivisions;
   }
-  if (r.subdivisions > 6) invalid("Riemannian OMT: at most 6 subdivisions");
+  if (r.subdivisions > 6 || static_cast<double>(input.num_faces()) * std::pow(4.0, r.subdivisions) > 16e6)
+    invalid("Riemannian OMT: " + std::to_string(r.subdivisions) + " subdivisions of " + std::to_string(input.num_faces()) +
+            " faces: at most 6 subdivisions and 16M faces");
   subdivide(input, vertex_density.size() ? vertex_density : Eigen::VectorXd::Ones(input.num_vertices()),
             r.subdivisions, r.mesh, rho);
   r.sites = input_sites;
@@ -474,6 +476,7 @@ mesh::Vertices prepare(const mesh::TriMesh& input, const std::vector<mesh::Surfa
   // compared with those within the resolution in x only.
   const Eigen::VectorXd area = mesh::face_areas(r.mesh);
   const double mu = rho.dot(area), resolution = 1e-9 * std::sqrt(area.sum());
+  if (!std::isfinite(mu)) invalid("Riemannian OMT: the source density's total mass is not finite");
   std::vector<int> order(static_cast<size_t>(k));
   for (int i = 0; i < k; ++i) order[static_cast<size_t>(i)] = i;
   std::sort(order.begin(), order.end(), [&](int a, int b) { return at(a, 0) < at(b, 0); });

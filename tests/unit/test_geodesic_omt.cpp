@@ -169,6 +169,12 @@ TEST(GeodesicOmt, Refusals) {
   EXPECT_ERROR(omt::solve_geodesic_omt(g, {a, b}, Eigen::Vector2d(1, -1), {}), ErrorCode::kInvalidArgument, "positive");
   EXPECT_ERROR(omt::solve_geodesic_omt(g, {a}, {}, Eigen::VectorXd::Ones(3)), ErrorCode::kInvalidArgument, "density values");
   EXPECT_ERROR(omt::solve_geodesic_omt(g, {a, a}, {}, {}), ErrorCode::kInvalidArgument, "at one point");
+  EXPECT_ERROR(omt::solve_geodesic_omt(g, {a, b}, Eigen::Vector2d(1e308, 1e308), {}), ErrorCode::kInvalidArgument, "finite sum");
+  EXPECT_ERROR(omt::solve_geodesic_omt(g, {a}, {}, Eigen::VectorXd::Constant(g.num_vertices(), 1e308)),
+               ErrorCode::kInvalidArgument, "total mass is not finite");
+  omt::GeodesicOmtOptions deep;
+  deep.subdivisions = 6;
+  EXPECT_ERROR(omt::solve_geodesic_omt(mesh::make_grid(200), {a}, {}, {}, deep), ErrorCode::kInvalidArgument, "16M faces");
   const mesh::SurfacePoint off{g.num_faces(), Eigen::Vector3d(1, 0, 0)};
   EXPECT_ERROR(omt::solve_geodesic_omt(g, {a, off}, {}, {}), ErrorCode::kInvalidArgument, "site 1 is not a point");
 }
