@@ -88,6 +88,7 @@ void to_proto(const jobs::MapRequest& r, pb::MapSpec* s) {
   s->set_hole_vertex(std::max(0, r.hole_vertex));
   s->set_max_iterations(r.max_iterations);
   s->set_allow_flips(r.allow_flips);
+  s->set_no_refine(!r.refine);
 }
 
 jobs::MapRequest from_proto(const pb::MapSpec& s) {
@@ -105,6 +106,7 @@ jobs::MapRequest from_proto(const pb::MapSpec& s) {
   }
   if (s.max_iterations() != 0) r.max_iterations = s.max_iterations();
   r.allow_flips = s.allow_flips();
+  r.refine = !s.no_refine();
   r.validate();
   return r;
 }

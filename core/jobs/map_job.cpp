@@ -27,6 +27,22 @@ nlohmann::json stats_json(const quality::Stats& s, const char* suffix = "") {
   return {{"mean" + sfx, s.mean}, {"p95" + sfx, s.p95}, {"max" + sfx, s.max}};
 }
 
+// The face-by-face refinement's report: whether it ran and met its tolerances, and the
+// per-face |log area ratio| before and after.
+nlohmann::json refinement_json(const omt::AreaRefinement& r) {
+  nlohmann::json j = {{"ran", r.ran}};
+  if (!r.ran) return j;
+  j.update({{"converged", r.converged},
+            {"kept_start", r.kept_start},
+            {"iterations", r.iterations},
+            {"stages", r.stages},
+            {"tolerance", {{"mean_abs", r.mean_tolerance}, {"p95_abs", r.p95_tolerance}}},
+            {"seconds", r.seconds},
+            {"area_distortion_log_before", stats_json(r.before, "_abs")},
+            {"area_distortion_log_after", stats_json(r.after, "_abs")}});
+  return j;
+}
+
 }  // namespace
 
 nlohmann::json problems_json(const mesh::Report& report) {
@@ -135,6 +151,7 @@ omt::AreaPreservingOptions area_preserving_options(const MapRequest& o, const Su
   apo.omt.max_iterations = o.max_iterations;
   apo.omt.progress = solver_progress(progress, "omt", apo.omt.tolerance, 0.3, 0.95);
   apo.t = o.t;
+  apo.refine.enabled = o.refine;
   if (progress)
     apo.repair_progress = [progress](int round, int folds) {
       return progress(Progress{"fold repair", 0.95, round + 1, static_cast<double>(folds)});
@@ -207,7 +224,8 @@ nlohmann::json map_report(const mesh::CleanMesh& cm, const MapRequest& o, const 
                 {"relaxed_vertices", ap->relaxed_vertices},
                 {"start", ap->spreading_stages ? "spread" : "conformal"},
                 {"spreading_stages", ap->spreading_stages},
-                {"spreading_newton_iterations", ap->spreading_newton_iterations}};
+                {"spreading_newton_iterations", ap->spreading_newton_iterations},
+                {"refined", refinement_json(ap->refinement)}};
   j["quality"] = {{"flipped_faces", q.flipped_faces},
                   {"degree", q.degree},
                   {"angle_distortion_deg", stats_json(q.angle_distortion_deg)},

@@ -44,6 +44,7 @@ struct MapRequest {
   std::vector<double> weights;  // area-preserving: one positive weight per input vertex
   double t = 0;                 // area-preserving: phi_t, 0 area-preserving .. 1 conformal
   bool allow_flips = false;     // return a map that folds faces instead of failing
+  bool refine = true;           // area-preserving: the face-by-face area refinement (omt/area_refinement.hpp)
 
   static constexpr int kMaxIterations = 100000;
   /// Error(kInvalidArgument) naming the field for anything that cannot run on any mesh.

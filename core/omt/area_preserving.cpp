@@ -56,6 +56,27 @@ AreaPreservingMap starting_from(conformal::ConformalMap c) {
   return out;
 }
 
+// The refinement's target areas: each face's area times its corners' mean region weight (the
+// vertex masses of eq. 3.30 weighted the same way).
+Eigen::VectorXd face_targets(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
+  Eigen::VectorXd target = mesh::face_areas(m);
+  if (opt.weights.size() != 0)
+    for (int f = 0; f < m.num_faces(); ++f)
+      target[f] *= (opt.weights[m.F(f, 0)] + opt.weights[m.F(f, 1)] + opt.weights[m.F(f, 2)]) / 3;
+  return target;
+}
+
+bool refines(const AreaPreservingOptions& opt, const AreaPreservingMap& map) {
+  return opt.refine.enabled && opt.t == 0 && map.folded_faces == 0;
+}
+
+// The sphere map returned, with the face-by-face refinement when it is a bijection.
+AreaPreservingMap refined_on_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt, AreaPreservingMap map) {
+  if (refines(opt, map) && quality::covers_once(map.degree))
+    map.refinement = refine_sphere_areas(m, face_targets(m, opt), map.positions, opt.refine);
+  return map;
+}
+
 }  // namespace
 
 OmtResult transport_to_mesh_sites(const mesh::TriMesh& m, const Domain& domain, const Points& sites, const Eigen::VectorXd& nu,
@@ -124,6 +145,7 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
       while (out.positions.row(v).norm() > 1) out.positions.row(v) *= 1 - std::numeric_limits<double>::epsilon();
     }
   out.relaxed_vertices = conformal::repair_planar_folds(m, out.positions, fixed, out.folded_faces);
+  if (refines(opt, out)) out.refinement = refine_disk_areas(m, face_targets(m, opt), out.positions, fixed, opt.refine);
   return out;
 }
 
@@ -337,22 +359,22 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   };
   // 1. The conformal map itself, unless it is crowded (or its transport fails: armadillo on
   //    some processors, where the Voronoi start cannot take a step).
-  if (shortest_edges(m, X).minCoeff() >= kCrowded && attempt([&] { transport_from(X); })) return out;
+  if (shortest_edges(m, X).minCoeff() >= kCrowded && attempt([&] { transport_from(X); })) return refined_on_sphere(m, opt, std::move(out));
   // 2. The spread start with Tutte steps only between stages (cheap; camel and cow come out
   //    bijective this way). A stage runs even where nothing is crowded: one loose transport
   //    and its centroids order a start whose own centroid map folds (cactus: 6 folds from
   //    the conformal map, none from one stage).
-  if (attempt([&] { spread_start(false, kDefer); })) return out;
+  if (attempt([&] { spread_start(false, kDefer); })) return refined_on_sphere(m, opt, std::move(out));
   // 3. Also the barrier repairs between stages, on the sphere and then in charts (bull and
   //    armadillo need the first: the next stage's kept centroids are then in order, where
   //    the second try leaves their regions wrapped; dino the second: 2 folds left without).
-  if (attempt([&] { spread_start(true, kDefer); })) return out;
+  if (attempt([&] { spread_start(true, kDefer); })) return refined_on_sphere(m, opt, std::move(out));
   // 4. Deferring more (vertices within 1e-5 of a neighbour), with the repairs: only where the
   //    round-off of the tries above left a fold torn across the sphere. Man with CHOLMOD's
   //    simplicial factor kept one after try 3 and none after this one (1e-7 kept it).
-  if (attempt([&] { spread_start(true, kDeferMore); })) return out;
+  if (attempt([&] { spread_start(true, kDeferMore); })) return refined_on_sphere(m, opt, std::move(out));
   if (!best) std::rethrow_exception(failure);
-  return std::move(*best);
+  return refined_on_sphere(m, opt, std::move(*best));
 }
 
 }  // namespace brenier::omt

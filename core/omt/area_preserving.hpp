@@ -9,6 +9,7 @@
 
 #include "conformal/conformal_map.hpp"
 #include "mesh/mesh.hpp"
+#include "omt/area_refinement.hpp"
 #include "omt/omt.hpp"
 
 namespace brenier::omt {
@@ -21,6 +22,10 @@ struct AreaPreservingOptions {
   Eigen::VectorXd weights;
   /// The polar-factorization family phi_t (sec. 3.2.8): 0 = area-preserving, 1 = conformal.
   double t = 0;
+  /// The face-by-face area refinement after the centroids (area_refinement.hpp); it runs
+  /// for t = 0 on a map without folds, toward the faces' areas times their corners' mean
+  /// region weight.
+  AreaRefineOptions refine;
   /// Called before each round of the sphere's fold repair with (round, folds left); false
   /// cancels (Error(kCancelled)), as the solvers' progress callbacks do.
   std::function<bool(int round, int folds)> repair_progress;
@@ -40,6 +45,8 @@ struct AreaPreservingMap {
   /// Sphere: how many times the map covers the sphere (quality::sphere_degree). A map with
   /// no folded face is a bijection exactly when this is 1.
   double degree = 1;
+  /// The face-by-face area refinement (ran = false: the seed's centroid map).
+  AreaRefinement refinement;
 };
 
 /// Vertex masses of eq. 3.30: one third of the adjacent face areas.

@@ -20,6 +20,7 @@ TEST(Spec, MapRequestsSurviveTheWire) {
   r.weights = {1, 2, 3};
   r.t = 0.25;
   r.allow_flips = true;
+  r.refine = false;
   pb::MapSpec s;
   spec::to_proto(r, &s);
   const jobs::MapRequest back = spec::from_proto(s);
@@ -31,6 +32,9 @@ TEST(Spec, MapRequestsSurviveTheWire) {
   EXPECT_EQ(back.weights, r.weights);
   EXPECT_EQ(back.t, r.t);
   EXPECT_TRUE(back.allow_flips);
+  EXPECT_FALSE(back.refine);
+  EXPECT_TRUE(s.no_refine());
+  EXPECT_TRUE(spec::from_proto(pb::MapSpec()).refine);  // an old client's spec: refined
   EXPECT_EQ(back.hole_vertex, -1);
   jobs::MapRequest cut;
   cut.cut_hole = true;

@@ -65,6 +65,8 @@ void MapFlags::add_to(CLI::App* cmd) {
   cmd->add_option("--t", r.t, "area-preserving: the polar-factorization map phi_t, 0 area-preserving .. 1 conformal")
       ->check(CLI::Range(0.0, 1.0));
   cmd->add_flag("--allow-flips", r.allow_flips, "return a map even if it folds faces");
+  cmd->add_flag("--no-refine{false}", r.refine,
+                "area-preserving: the seed's centroid map, without the face-by-face area refinement");
 }
 
 jobs::MapRequest MapFlags::resolve() const {

@@ -285,13 +285,14 @@ class Client:
     # ---- computations -----------------------------------------------------------------------
 
     def map(self, mesh, domain="disk", method="conformal", *, t=0.0, tolerance=0.0, cut_hole=False, weights=None,
-            allow_flips=False, max_iterations=0, progress=None):
+            allow_flips=False, max_iterations=0, refine=True, progress=None):
         """Maps a surface onto the unit disk or sphere (conformal: Alg. 1; area-preserving:
-        the conformal map, then optimal transport, Alg. 3) and waits for it."""
+        the conformal map, then optimal transport, Alg. 3, then the face-by-face area
+        refinement unless refine=False) and waits for it."""
         spec = pb.MapSpec(mesh=self.mesh_id(mesh), domain=_pick(_DOMAINS, domain, "domain"),
                           method=_pick(_MAP_METHODS, method, "method"), t=t, tolerance=tolerance, cut_hole=cut_hole,
                           weights=list(weights) if weights is not None else [], allow_flips=allow_flips,
-                          max_iterations=max_iterations, output_format="obj")
+                          max_iterations=max_iterations, no_refine=not refine, output_format="obj")
         job = self.watch(self.submit(map=spec).id, progress)
         positions, vt, faces = _parse_obj(self.result(job.id, "mesh"))
         disk = domain == "disk"

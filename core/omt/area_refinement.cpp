@@ -1,0 +1,511 @@
+#include "omt/area_refinement.hpp"
+
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <type_traits>
+
+#include "common/check.hpp"
+#include "common/parallel.hpp"
+#include "mesh/geometry.hpp"
+#include "omt/barrier_energy.hpp"
+#include "omt/newton_step.hpp"
+
+namespace brenier::omt {
+
+Eigen::VectorXd abs_log_area_ratios(const mesh::Faces& F, const mesh::Vertices& X, const Eigen::VectorXd& target) {
+  const Eigen::VectorXd a = mesh::face_areas(F, X);
+  const double ta = a.sum(), tt = target.sum();
+  Eigen::VectorXd out(F.rows());
+  for (Eigen::Index f = 0; f < F.rows(); ++f) out[f] = std::abs(std::log((a[f] / ta) / (target[f] / tt)));
+  return out;
+}
+
+namespace {
+
+quality::Stats abs_log_stats(const mesh::Faces& F, const mesh::Vertices& X, const Eigen::VectorXd& target) {
+  const Eigen::VectorXd r = abs_log_area_ratios(F, X, target);
+  return quality::stats(std::vector<double>(r.data(), r.data() + r.size()));
+}
+
+using Vec6 = Eigen::Matrix<double, 6, 1>;
+using Mat6 = Eigen::Matrix<double, 6, 6>;
+
+// A face's gradient and Hessian in the two coordinates of each of its corners.
+struct Local {
+  Vec6 g;
+  Mat6 H;
+};
+
+// The symmetric matrix H with its negative eigenvalues set to zero.
+template <int N>
+Eigen::Matrix<double, N, N> clamped(const Eigen::Matrix<double, N, N>& H) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, N, N>> eig(H);
+  return eig.eigenvectors() * eig.eigenvalues().cwiseMax(0.0).asDiagonal() * eig.eigenvectors().transpose();
+}
+
+// The energy's derivatives in D = det J and T = |J|_F^2, eps = 0:
+//   e(D, T) = w [theta (D + 1/D) + (1 - theta) T / D].
+struct Scalars {
+  double e, eD, eT, eDD, eDT;  // eTT = 0
+};
+Scalars scalars(double w, double theta, double D, double T) {
+  const double s = 1 - theta;
+  return {w * (theta * (D + 1 / D) + s * T / D), w * (theta * (1 - 1 / (D * D)) - s * T / (D * D)), w * s / D,
+          w * (2 * theta / (D * D * D) + 2 * s * T / (D * D * D)), -w * s / (D * D)};
+}
+
+// The plane: a face's corners are rows of X (x, y), J = [b - a, c - a] R with R the
+// reference's inverse edge matrix, D = det J.
+struct PlaneGeometry {
+  static Eigen::Matrix2d edges(const mesh::Vertices& X, const detail::BarrierFace& f) {
+    Eigen::Matrix2d M;
+    M << X(f.v[1], 0) - X(f.v[0], 0), X(f.v[2], 0) - X(f.v[0], 0), X(f.v[1], 1) - X(f.v[0], 1),
+        X(f.v[2], 1) - X(f.v[0], 1);
+    return M;
+  }
+  // The face's energy, or infinity when it degenerates or turns over.
+  double term(const mesh::Vertices& X, const detail::BarrierFace& f, double theta) const {
+    const Eigen::Matrix2d J = edges(X, f) * f.ref_inv;
+    const double D = J.determinant();
+    return D > 0 ? scalars(f.weight, theta, D, J.squaredNorm()).e : std::numeric_limits<double>::infinity();
+  }
+  // The gradient and the Hessian projected onto the positive semi-definite cone (Teran et
+  // al. 2005), in J (4x4, where the projection is cheap), pulled back through the linear
+  // x -> vec J.
+  Local derivatives(const mesh::Vertices& X, const detail::BarrierFace& f, double theta) const {
+    const Eigen::Matrix2d& R = f.ref_inv;
+    const Eigen::Matrix2d J = edges(X, f) * R;
+    const double D = J.determinant(), T = J.squaredNorm();
+    const Scalars c = scalars(f.weight, theta, D, T);
+    using V4 = Eigen::Vector4d;
+    using M4 = Eigen::Matrix4d;
+    const V4 j(J(0, 0), J(1, 0), J(0, 1), J(1, 1));      // vec J, column-major
+    const V4 cof(J(1, 1), -J(0, 1), -J(1, 0), J(0, 0));  // dD / d vec J
+    M4 HD = M4::Zero();                                  // d^2 D / d vec J^2
+    HD(0, 3) = HD(3, 0) = 1;
+    HD(1, 2) = HD(2, 1) = -1;
+    const V4 gT = 2 * j;  // dT / d vec J; d^2 T = 2 I
+    const V4 gJ = c.eD * cof + c.eT * gT;
+    const M4 HJ = clamped<4>(c.eDD * cof * cof.transpose() + c.eDT * (cof * gT.transpose() + gT * cof.transpose()) +
+                             c.eD * HD + 2 * c.eT * M4::Identity());
+    // vec J = A x, x = (a, b, c): J(i, k) = sum_m M(i, m) R(m, k).
+    Eigen::Matrix<double, 4, 6> A = Eigen::Matrix<double, 4, 6>::Zero();
+    for (int i = 0; i < 2; ++i)
+      for (int k = 0; k < 2; ++k) {
+        A(i + 2 * k, 2 + i) = R(0, k);
+        A(i + 2 * k, 4 + i) = R(1, k);
+        A(i + 2 * k, i) = -(R(0, k) + R(1, k));
+      }
+    return {A.transpose() * gJ, A.transpose() * HJ * A};
+  }
+  void begin(const mesh::Vertices&) {}
+  static double measure(const mesh::Vertices&, const mesh::Faces&, int) { return 1; }
+  void move(mesh::Vertices& Y, int row, const Eigen::Vector2d& step) const { Y.row(row).head<2>() += step.transpose(); }
+  bool valid(const mesh::Vertices&) const { return true; }  // the finite energy says it all
+
+  // The largest t with det(edges) positive along X + t d for every face (Smith and Schaefer
+  // 2015): the determinant is a quadratic in t.
+  static double first_root(const Eigen::Matrix2d& M, const Eigen::Vector2d& e1, const Eigen::Vector2d& e2) {
+    const double c0 = M.determinant();
+    const double c1 = M(0, 0) * e2.y() + e1.x() * M(1, 1) - M(0, 1) * e1.y() - e2.x() * M(1, 0);
+    const double c2 = e1.x() * e2.y() - e1.y() * e2.x();
+    double root = std::numeric_limits<double>::infinity();
+    if (std::abs(c2) < 1e-300) {
+      if (c1 < 0) root = -c0 / c1;
+      return root;
+    }
+    const double disc = c1 * c1 - 4 * c2 * c0;
+    if (disc < 0) return root;
+    const double sq = std::sqrt(disc);
+    for (double r : {(-c1 - sq) / (2 * c2), (-c1 + sq) / (2 * c2)})
+      if (r > 0) root = std::min(root, r);
+    return root;
+  }
+};
+
+// The sphere: corners on the unit sphere, a vertex moved by delta in its tangent plane goes to
+// (x + B delta) / |x + B delta|, B an orthonormal tangent basis. D = det(a, b, c) / (2 A)
+// (positive exactly when the face turns outward; the chord area times the plane's distance
+// from the centre), J the chord edges [b - a, c - a] (3x2) times R.
+struct SphereGeometry {
+  const mesh::Vertices* X0 = nullptr;
+  std::vector<Eigen::Matrix<double, 3, 2>> basis;  // per vertex, at the step's start
+
+  static Eigen::Vector3d at(const mesh::Vertices& X, int r) { return X.row(r).transpose(); }
+  static Eigen::Matrix3d skew(const Eigen::Vector3d& u) {
+    Eigen::Matrix3d S;
+    S << 0, -u.z(), u.y(), u.z(), 0, -u.x(), -u.y(), u.x(), 0;
+    return S;
+  }
+  // A face's area in the energy's measure over its chord triangle's: its plane's distance from
+  // the centre, det(a, b, c) / |(b - a) x (c - a)|.
+  static double measure(const mesh::Vertices& X, const mesh::Faces& F, int f) {
+    const Eigen::Vector3d a = at(X, F(f, 0)), b = at(X, F(f, 1)), c = at(X, F(f, 2));
+    const double n = (b - a).cross(c - a).norm();
+    return n > 0 ? a.dot(b.cross(c)) / n : 1;
+  }
+  // At each step's start: tangent bases at X, where the moves start from.
+  void begin(const mesh::Vertices& X) {
+    X0 = &X;
+    basis.resize(X.rows());
+    for (Eigen::Index r = 0; r < X.rows(); ++r) {
+      const Eigen::Vector3d x = at(X, static_cast<int>(r));
+      const Eigen::Vector3d e = std::abs(x.x()) < 0.6 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+      const Eigen::Vector3d u = x.cross(e).normalized();
+      basis[r] << u, x.cross(u);
+    }
+  }
+  double term(const mesh::Vertices& X, const detail::BarrierFace& f, double theta) const {
+    const Eigen::Vector3d a = at(X, f.v[0]), b = at(X, f.v[1]), c = at(X, f.v[2]);
+    const double D = a.dot(b.cross(c)) / (2 * f.weight);
+    if (!(D > 0)) return std::numeric_limits<double>::infinity();
+    Eigen::Matrix<double, 3, 2> M;
+    M << b - a, c - a;
+    return scalars(f.weight, theta, D, (M * f.ref_inv).squaredNorm()).e;
+  }
+  // The Hessian in the nine coordinates of (a, b, c), then in the corners' tangent
+  // coordinates (B^T H B, less (x . g_x) I for the sphere's curvature), projected there.
+  Local derivatives(const mesh::Vertices& X, const detail::BarrierFace& f, double theta) const {
+    const Eigen::Vector3d a = at(X, f.v[0]), b = at(X, f.v[1]), c = at(X, f.v[2]);
+    const double k = 1 / (2 * f.weight);
+    const double D = a.dot(b.cross(c)) * k;
+    using V9 = Eigen::Matrix<double, 9, 1>;
+    using M9 = Eigen::Matrix<double, 9, 9>;
+    V9 gD;
+    gD << b.cross(c) * k, c.cross(a) * k, a.cross(b) * k;
+    M9 HD = M9::Zero();
+    HD.block<3, 3>(0, 3) = -skew(c) * k;
+    HD.block<3, 3>(0, 6) = skew(b) * k;
+    HD.block<3, 3>(3, 6) = -skew(a) * k;
+    HD.block<3, 3>(3, 0) = HD.block<3, 3>(0, 3).transpose();
+    HD.block<3, 3>(6, 0) = HD.block<3, 3>(0, 6).transpose();
+    HD.block<3, 3>(6, 3) = HD.block<3, 3>(3, 6).transpose();
+    // T = |M R|^2 = sum_{m,n} (R R^T)(m, n) e_m . e_n with e_0 = b - a, e_1 = c - a.
+    const Eigen::Matrix2d K = f.ref_inv * f.ref_inv.transpose();
+    Eigen::Matrix<double, 2, 3> S;  // e_m = sum_p S(m, p) corner_p
+    S << -1, 1, 0, -1, 0, 1;
+    const Eigen::Matrix3d W = S.transpose() * K * S;  // T = sum_{p,q} W(p, q) x_p . x_q
+    M9 HT;
+    for (int p = 0; p < 3; ++p)
+      for (int q = 0; q < 3; ++q) HT.block<3, 3>(3 * p, 3 * q) = 2 * W(p, q) * Eigen::Matrix3d::Identity();
+    V9 x;
+    x << a, b, c;
+    const V9 gT = HT * x;
+    const double T = 0.5 * x.dot(gT);
+    const Scalars s = scalars(f.weight, theta, D, T);
+    const V9 g9 = s.eD * gD + s.eT * gT;
+    const M9 H9 = s.eDD * gD * gD.transpose() + s.eDT * (gD * gT.transpose() + gT * gD.transpose()) + s.eD * HD +
+                  s.eT * HT;
+    Eigen::Matrix<double, 9, 6> P = Eigen::Matrix<double, 9, 6>::Zero();
+    for (int p = 0; p < 3; ++p) P.block<3, 2>(3 * p, 2 * p) = basis[f.v[p]];
+    Mat6 H = P.transpose() * H9 * P;
+    for (int p = 0; p < 3; ++p) H.block<2, 2>(2 * p, 2 * p) -= x.segment<3>(3 * p).dot(g9.segment<3>(3 * p)) * Eigen::Matrix2d::Identity();
+    return {P.transpose() * g9, clamped<6>(H)};
+  }
+  void move(mesh::Vertices& Y, int row, const Eigen::Vector2d& step) const {
+    Y.row(row) = (at(*X0, row) + basis[row] * step).normalized().transpose();
+  }
+  // A map with every face outward can still wrap around the sphere: it must cover it once.
+  const mesh::Faces* F = nullptr;
+  bool valid(const mesh::Vertices& Y) const { return quality::covers_once(quality::sphere_degree(*F, Y)); }
+};
+
+// A vertex's unknowns: none (held), two (its coordinates in the geometry's frame), or one,
+// the step along the unit circle of a disk's boundary vertex (x -> (x + tau t) / |x + tau t|,
+// t = (-y, x) the circle's tangent there).
+struct Dof {
+  int offset = -1;  // first unknown, -1: held
+  int count = 0;    // 0, 1 (on the circle) or 2
+};
+
+// Damped projected Newton on the energy of area_refinement.hpp over the unknowns of Dof: each
+// face's clamped Hessian, in its corners' unknowns, into the global one, whose pattern is
+// fixed (the entries go straight into its values), factored by CHOLMOD; the step is cut to
+// 0.9 of the way to the first degenerate face where that is known in closed form (the plane,
+// along the straight step), then halved until the energy drops by Armijo's rule and the map
+// stays valid (finite energy: no face degenerate or turned over).
+template <class Geometry>
+class FaceNewton {
+ public:
+  FaceNewton(const std::vector<detail::BarrierFace>& faces, const std::vector<Dof>& dof, int n, Geometry& geometry)
+      : faces_(faces), dof_(dof), n_(n), geometry_(geometry), local_(faces.size()), corner_g_(faces.size() * 3),
+        tangent_(dof.size(), Eigen::Vector2d::Zero()) {
+    std::vector<Eigen::Triplet<double>> entries;
+    for (const detail::BarrierFace& f : faces_)
+      each_entry(f, [&](int, int r, int c) { entries.emplace_back(r, c, 1.0); });
+    H_.resize(n_, n_);
+    H_.setFromTriplets(entries.begin(), entries.end());
+    H_.makeCompressed();
+    slots_.assign(faces_.size() * 36, -1);
+    for (size_t k = 0; k < faces_.size(); ++k)
+      each_entry(faces_[k], [&](int local, int r, int c) {
+        const int* rows = H_.innerIndexPtr();
+        const int* begin = rows + H_.outerIndexPtr()[c];
+        const int* end = rows + H_.outerIndexPtr()[c + 1];
+        slots_[k * 36 + local] = static_cast<int>(std::lower_bound(begin, end, r) - rows);
+      });
+    single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
+    // Supernodal from 100K unknowns: the 2x2 blocks of each vertex fill more than the
+    // transport's Hessian does (100K vertices: 2.6 s a step simplicial; figures in RESULTS).
+    llt_.setMode(n_ >= 100000 ? Eigen::CholmodSupernodalLLt : Eigen::CholmodSimplicialLLt);
+    llt_.cholmod().print = 0;
+  }
+
+  // The energy at X (infinite when a face degenerates or turns over).
+  double energy(const mesh::Vertices& X, double theta) const {
+    double E = 0;
+    const long nf = static_cast<long>(faces_.size());
+#pragma omp parallel for reduction(+ : E) schedule(static)
+    for (long k = 0; k < nf; ++k) E += geometry_.term(X, faces_[k], theta);
+    return E;
+  }
+
+  // One damped Newton step at theta; returns the Newton decrement -g.d (0: no step taken).
+  double step(mesh::Vertices& X, double theta) {
+    const long nf = static_cast<long>(faces_.size());
+    geometry_.begin(X);
+    for (size_t r = 0; r < dof_.size(); ++r)
+      if (dof_[r].count == 1) tangent_[r] << -X(r, 1), X(r, 0);
+#pragma omp parallel for schedule(static)
+    for (long k = 0; k < nf; ++k) {
+      const Local full = geometry_.derivatives(X, faces_[k], theta);
+      for (int p = 0; p < 3; ++p) corner_g_[k * 3 + p] = full.g.segment<2>(2 * p);
+      const Mat6 T = reduction(faces_[k]);
+      local_[k] = {T.transpose() * full.g, T.transpose() * full.H * T};
+    }
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(n_);
+    double* values = H_.valuePtr();
+    std::fill(values, values + H_.nonZeros(), 0.0);
+    std::vector<Eigen::Vector2d> circle_g(dof_.size(), Eigen::Vector2d::Zero());
+    for (long k = 0; k < nf; ++k) {
+      const Local& L = local_[k];
+      const detail::BarrierFace& f = faces_[k];
+      for (int p = 0; p < 3; ++p) {
+        const Dof& d = dof_[f.v[p]];
+        for (int a = 0; a < d.count; ++a) g[d.offset + a] += L.g[2 * p + a];
+        if (d.count == 1) circle_g[f.v[p]] += corner_g_[k * 3 + p];
+      }
+      for (int e = 0; e < 36; ++e)
+        if (slots_[k * 36 + e] >= 0) values[slots_[k * 36 + e]] += L.H(e % 6, e / 6);
+    }
+    // The circle's curvature: along x(tau) = (x + tau t) / |x + tau t|, x'' = -x, so the energy's
+    // second derivative gains -grad . x (kept only where positive: the Hessian stays definite).
+    for (size_t r = 0; r < dof_.size(); ++r)
+      if (dof_[r].count == 1)
+        H_.coeffRef(dof_[r].offset, dof_[r].offset) += std::max(0.0, -circle_g[r].dot(X.row(r).head<2>().transpose()));
+    // A small multiple of the diagonal's mean keeps the clamped Hessian definite (the
+    // sphere's energy is invariant under rotations).
+    const double shift = 1e-9 * H_.diagonal().sum() / n_;
+    for (int i = 0; i < n_; ++i) H_.coeffRef(i, i) += shift;
+    if (!analyzed_) llt_.analyzePattern(H_), analyzed_ = true;
+    llt_.factorize(H_);
+    if (llt_.info() != Eigen::Success) return 0;
+    const Eigen::VectorXd d = -llt_.solve(g);
+    const double decrement = -g.dot(d);
+    if (!(decrement > 0) || !d.allFinite()) return 0;
+    const double E0 = energy(X, theta);
+    double t = std::min(1.0, 0.9 * max_step(X, d));
+    mesh::Vertices trial = X;
+    for (int k = 0; k < 40; ++k, t *= 0.5) {
+      trial = X;
+      for (Eigen::Index r = 0; r < X.rows(); ++r)
+        if (dof_[r].count > 0) {
+          geometry_.move(trial, static_cast<int>(r), t * step_of(static_cast<int>(r), d));
+          if (dof_[r].count == 1) trial.row(r).head<2>().normalize();  // back onto the circle
+        }
+      if (energy(trial, theta) <= E0 - 1e-4 * t * decrement && geometry_.valid(trial)) {
+        X = std::move(trial);
+        return decrement;
+      }
+    }
+    return 0;
+  }
+
+ private:
+  // The corners' steps from their unknowns: columns 2p, 2p + 1 of the face's six coordinates
+  // for corner p's unknowns (the identity, the circle's tangent, or nothing).
+  Mat6 reduction(const detail::BarrierFace& f) const {
+    Mat6 T = Mat6::Zero();
+    for (int p = 0; p < 3; ++p) {
+      const Dof& d = dof_[f.v[p]];
+      if (d.count == 2) T.block<2, 2>(2 * p, 2 * p).setIdentity();
+      if (d.count == 1) T.block<2, 1>(2 * p, 2 * p) = tangent_[f.v[p]];
+    }
+    return T;
+  }
+  // The 2-D step of vertex r in its geometry's frame.
+  Eigen::Vector2d step_of(int r, const Eigen::VectorXd& d) const {
+    const Dof& v = dof_[r];
+    if (v.count == 2) return d.segment<2>(v.offset);
+    if (v.count == 1) return d[v.offset] * tangent_[r];
+    return Eigen::Vector2d::Zero();
+  }
+
+  // visit(e, row, col) for the face's lower-triangle entries between unknowns, e the
+  // column-major index into its reduced 6x6 Hessian (unknown a of corner p at 2p + a).
+  template <class Visit>
+  void each_entry(const detail::BarrierFace& f, const Visit& visit) const {
+    for (int p = 0; p < 3; ++p)
+      for (int q = 0; q < 3; ++q) {
+        const Dof &dp = dof_[f.v[p]], &dq = dof_[f.v[q]];
+        for (int a = 0; a < dp.count; ++a)
+          for (int b = 0; b < dq.count; ++b)
+            if (dp.offset + a >= dq.offset + b) visit((2 * p + a) + 6 * (2 * q + b), dp.offset + a, dq.offset + b);
+      }
+  }
+
+  double max_step(const mesh::Vertices& X, const Eigen::VectorXd& d) const {
+    if constexpr (!std::is_same_v<Geometry, PlaneGeometry>) {
+      (void)X, (void)d;
+      return std::numeric_limits<double>::infinity();
+    } else {
+      auto dv = [&](int r) { return step_of(r, d); };
+      double best = std::numeric_limits<double>::infinity();
+      const long nf = static_cast<long>(faces_.size());
+#pragma omp parallel for reduction(min : best) schedule(static)
+      for (long k = 0; k < nf; ++k) {
+        const detail::BarrierFace& f = faces_[k];
+        const Eigen::Vector2d da = dv(f.v[0]);
+        best = std::min(best, PlaneGeometry::first_root(PlaneGeometry::edges(X, f), dv(f.v[1]) - da, dv(f.v[2]) - da));
+      }
+      return best;
+    }
+  }
+
+  const std::vector<detail::BarrierFace>& faces_;
+  const std::vector<Dof>& dof_;
+  int n_;
+  Geometry& geometry_;
+  std::vector<Local> local_;           // per face, in its corners' unknowns
+  std::vector<Eigen::Vector2d> corner_g_;  // per face corner, the gradient in the geometry's frame
+  std::vector<Eigen::Vector2d> tangent_;   // per vertex on the circle, the tangent at the step's start
+  Eigen::SparseMatrix<double> H_;
+  std::vector<int> slots_;  // per face, 36 entries: the value index of each Hessian entry (-1: none)
+  detail::NewtonFactor llt_;
+  bool analyzed_ = false;
+};
+
+// The reference triangle of face f: m's own shape, scaled to area a.
+detail::BarrierFace reference(const mesh::TriMesh& m, int f, double a) {
+  return detail::barrier_face(m.F(f, 0), m.F(f, 1), m.F(f, 2), m.V.row(m.F(f, 0)), m.V.row(m.F(f, 1)),
+                              m.V.row(m.F(f, 2)), a);
+}
+
+void check_targets(const mesh::TriMesh& m, const Eigen::VectorXd& target, const mesh::Vertices& X) {
+  BRENIER_CHECK(target.size() == m.num_faces() && X.rows() == m.num_vertices(),
+                target.size() << " target areas, " << X.rows() << " rows for " << m.num_faces() << " faces");
+  for (Eigen::Index f = 0; f < target.size(); ++f)
+    BRENIER_CHECK(target[f] > 0 && std::isfinite(target[f]), "face " << f << " has target area " << target[f]);
+}
+
+// The staged minimization of area_refinement.hpp: theta = 0.999, then 0.9999, each stage
+// ended when the Newton decrement falls below 1e-7 of the energy or after 50 steps, the
+// whole when the tolerances hold or the budget is spent. `areas(X)` gives the faces' areas
+// in the energy's measure (their total scales the targets).
+// free[v]: vertex v's number of unknowns (Dof::count).
+template <class Geometry, class Areas>
+AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
+                      const std::vector<char>& free, const AreaRefineOptions& opt, Geometry& geometry,
+                      const Areas& areas) {
+  const auto t0 = std::chrono::steady_clock::now();
+  AreaRefinement out;
+  out.ran = true;
+  out.mean_tolerance = opt.mean_tolerance;
+  out.p95_tolerance = opt.p95_tolerance;
+  out.before = out.after = abs_log_stats(m.F, X, target);
+  auto met = [&](const quality::Stats& s) { return s.mean <= opt.mean_tolerance && s.p95 <= opt.p95_tolerance; };
+  out.converged = met(out.after);
+  const mesh::Vertices start = X;
+  // The reference triangles, of the target areas in the energy's measure (on the sphere the
+  // chord areas times their planes' distances from the centre, read at the current map, so
+  // that the targets are the chord areas the result is measured by), their total the map's.
+  // The total is set once: rescaled at every step, the energy would gain by shrinking the
+  // map's volume on the sphere (smaller targets everywhere) instead of equalizing areas.
+  std::vector<detail::BarrierFace> faces(m.num_faces());
+  double scale = 0;
+  auto set_references = [&] {
+    Eigen::VectorXd t(m.num_faces());
+    for (int f = 0; f < m.num_faces(); ++f) t[f] = target[f] * Geometry::measure(X, m.F, f);
+    if (scale == 0) scale = areas(X) / t.sum();
+    for (int f = 0; f < m.num_faces(); ++f) faces[f] = reference(m, f, t[f] * scale);
+  };
+  set_references();
+  std::vector<Dof> dof(X.rows());
+  int n = 0;
+  for (Eigen::Index r = 0; r < X.rows(); ++r)
+    if (free[r] > 0) dof[r] = {n, free[r]}, n += free[r];
+  FaceNewton<Geometry> newton(faces, dof, n, geometry);
+  for (double theta : {0.999, 0.9999}) {
+    if (out.converged || out.iterations >= opt.max_iterations || n == 0) break;
+    ++out.stages;
+    for (int k = 0; k < 50 && out.iterations < opt.max_iterations && !out.converged; ++k) {
+      if (k > 0 && !std::is_same_v<Geometry, PlaneGeometry>) set_references();
+      const double E = newton.energy(X, theta);
+      const double decrement = newton.step(X, theta);
+      ++out.iterations;
+      out.after = abs_log_stats(m.F, X, target);
+      out.converged = met(out.after);
+      if (!(decrement > 1e-7 * E)) break;
+    }
+  }
+  // The energy is not the measure: where the targets cannot be met (a cube's eight corners, a
+  // beam's), its minimum can sit at a larger mean |log area ratio| than the start. Then the
+  // start is kept.
+  if (out.after.mean > out.before.mean) {
+    X = start;
+    out.after = out.before;
+    out.converged = false;
+    out.kept_start = true;
+  }
+  out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return out;
+}
+
+}  // namespace
+
+AreaRefinement refine_disk_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
+                                 const std::vector<char>& fixed, const AreaRefineOptions& opt) {
+  check_targets(m, target, X);
+  if (!opt.enabled) return {};
+  auto total = [&](const mesh::Vertices& Y) {
+    double sum = 0;
+    for (int f = 0; f < m.num_faces(); ++f) {
+      const Eigen::Matrix2d M = PlaneGeometry::edges(Y, detail::BarrierFace{{m.F(f, 0), m.F(f, 1), m.F(f, 2)}, {}, 0});
+      const double s = 0.5 * M.determinant();
+      if (!(s > 0)) return -1.0;  // a fold: the barrier needs a valid start
+      sum += s;
+    }
+    return sum;
+  };
+  if (!(total(X) > 0)) return {};
+  // Unknowns per vertex: 2 inside, 1 on the boundary (along the circle) or 0 (held).
+  std::vector<char> free(fixed.size());
+  for (size_t v = 0; v < fixed.size(); ++v) free[v] = !fixed[v] ? 2 : opt.slide_boundary ? 1 : 0;
+  PlaneGeometry plane;
+  return refine(m, target, X, free, opt, plane, total);
+}
+
+AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
+                                   const AreaRefineOptions& opt) {
+  check_targets(m, target, X);
+  if (!opt.enabled) return {};
+  auto total = [&](const mesh::Vertices& Y) {  // in the energy's measure det(a, b, c) / 2
+    double sum = 0;
+    for (int f = 0; f < m.num_faces(); ++f) {
+      const double s = 0.5 * Y.row(m.F(f, 0)).dot(Y.row(m.F(f, 1)).cross(Y.row(m.F(f, 2))));
+      if (!(s > 0)) return -1.0;
+      sum += s;
+    }
+    return sum;
+  };
+  if (!(total(X) > 0) || !quality::covers_once(quality::sphere_degree(m.F, X))) return {};
+  const std::vector<char> free(m.num_vertices(), 2);
+  SphereGeometry sphere;
+  sphere.F = &m.F;
+  return refine(m, target, X, free, opt, sphere, total);
+}
+
+}  // namespace brenier::omt

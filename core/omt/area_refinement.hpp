@@ -1,0 +1,70 @@
+// Face-by-face area refinement of an area-preserving map (issue 26). The seed's Alg. 3 puts
+// each vertex at the centroid of its power cell: every cell has exactly its mass, but the
+// triangles spanned by the centroids do not have their faces' areas (lion-head: mean
+// |log area ratio| 0.27). The refinement starts from that bijective map and minimizes, over
+// the free vertices, the barrier energy of fold_repair.hpp (Garanzha et al. 2021) with eps = 0,
+//     sum_f A_f [theta (D_f + 1 / D_f) + (1 - theta) |J_f|_F^2 / D_f],
+// J_f the face's Jacobian against its surface triangle scaled to the target area A_f and
+// D_f = det J_f its area ratio (on the sphere: det(a, b, c) / 2 A_f, positive exactly when the
+// face turns outward). The first term is least at D_f = 1, the face's own area; the second,
+// the MIPS energy, is scale-free and keeps the shapes, which makes the minimizer unique and
+// keeps the triangles from turning into slivers; theta = 0.999, then 0.9999, lets the area
+// term win. The minimization is a projected Newton method (each face's Hessian with its
+// negative eigenvalues clamped, CHOLMOD for the system), the step cut before any face
+// degenerates (the plane: in closed form) and by Armijo's rule; the energy is infinite on a
+// degenerate face, so from a map with no flipped face no face flips, and on the sphere a step
+// is also kept only if the map still covers the sphere once. The disk's boundary vertices
+// slide along the circle (a face with three corners there could not change its area if they
+// were held). Stops when the stated tolerances hold (mean and 95th percentile of |log area
+// ratio|) or after the step budget, saying which; a result worse than its start is not kept.
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "mesh/mesh.hpp"
+#include "quality/quality.hpp"
+
+namespace brenier::omt {
+
+struct AreaRefineOptions {
+  /// false: the seed's centroid map as it is (--no-refine).
+  bool enabled = true;
+  /// Stop once mean |log area ratio| <= mean_tolerance and its 95th percentile <= p95_tolerance
+  /// (both maps scaled to equal total area, as quality::area_log_ratios).
+  double mean_tolerance = 0.01;
+  double p95_tolerance = 0.05;
+  /// The disk's boundary vertices slide along the circle (false: held where they are).
+  bool slide_boundary = true;
+  /// Newton steps over all stages.
+  int max_iterations = 100;
+};
+
+struct AreaRefinement {
+  bool ran = false;        // false: disabled, phi_t with t > 0, or a start with folds
+  bool converged = false;  // both tolerances met
+  bool kept_start = false;  // the minimum came out worse than the start, which was kept
+  int iterations = 0;      // Newton steps in all
+  int stages = 0;          // theta stages run
+  quality::Stats before, after;  // |log(area / target area)| per face, totals equal
+  double mean_tolerance = 0, p95_tolerance = 0;  // the stop it was given
+  double seconds = 0;
+};
+
+/// |log((a_f / sum a) / (target_f / sum target))| per face, a the chord triangle areas of X.
+Eigen::VectorXd abs_log_area_ratios(const mesh::Faces& F, const mesh::Vertices& X, const Eigen::VectorXd& target);
+
+/// Refines a planar map X (#V by 3, z = 0, no flipped face) of m toward the face areas
+/// `target` (any scale: they are scaled to the map's total); the rows with fixed[v] != 0 (the
+/// disk's boundary, on the unit circle) slide along the circle, or are held without
+/// options.slide_boundary. X keeps no flipped face, so the boundary keeps its cyclic order.
+AreaRefinement refine_disk_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
+                                 const std::vector<char>& fixed, const AreaRefineOptions& options);
+
+/// Refines a map X of closed genus-0 m onto the unit sphere (no flipped face, covering the
+/// sphere once) toward the face areas `target`; every vertex moves, on the sphere. X stays a
+/// bijection.
+AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
+                                   const AreaRefineOptions& options);
+
+}  // namespace brenier::omt

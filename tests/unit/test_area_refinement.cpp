@@ -1,0 +1,177 @@
+// The face-by-face area refinement (omt/area_refinement.hpp) on closed forms: a start whose
+// targets a similarity meets exactly comes back to it (the energy's unique minimum); the
+// area-preserving maps of a square and an ellipsoid reach their stated tolerances with no
+// flipped face, the disk's boundary held and the sphere covered once; region weights move
+// the faces' areas to their weighted targets; phi_t, --no-refine and a folded start are left
+// alone.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <cmath>
+#include <numbers>
+
+#include "mesh/geometry.hpp"
+#include "mesh/shapes.hpp"
+#include "mesh/topology.hpp"
+#include "omt/area_preserving.hpp"
+#include "omt/area_refinement.hpp"
+#include "quality/quality.hpp"
+
+using namespace brenier;
+
+namespace {
+
+std::vector<char> boundary_of(const mesh::TriMesh& m) {
+  std::vector<char> b(m.num_vertices(), 0);
+  for (const auto& loop : mesh::boundary_loops(m))
+    for (int v : loop) b[v] = 1;
+  return b;
+}
+
+}  // namespace
+
+TEST(AreaRefinement, AFlatDiskPulledRadiallyComesBackToItself) {
+  // The flat unit disk's own triangles are the targets, so the identity meets every one
+  // exactly (D = 1) and is conformal (the MIPS term least): the energy's unique minimum with
+  // the boundary held. The start pulls every vertex radially, r -> r^1.6 (areas off by up to
+  // a factor 2.5 near the centre, boundary unchanged).
+  mesh::TriMesh m = mesh::make_disk(12);
+  mesh::Vertices X = m.V;
+  for (int v = 0; v < m.num_vertices(); ++v) {
+    const double r = X.row(v).head<2>().norm();
+    if (r > 0) X.row(v).head<2>() *= std::pow(r, 0.6);
+  }
+  const std::vector<char> fixed = boundary_of(m);
+  omt::AreaRefineOptions o;
+  o.slide_boundary = false;  // held: the minimum is the identity itself, not a turn of it
+  o.mean_tolerance = 1e-5;
+  o.p95_tolerance = 1e-4;
+  const omt::AreaRefinement r = omt::refine_disk_areas(m, mesh::face_areas(m), X, fixed, o);
+  EXPECT_TRUE(r.ran);
+  EXPECT_TRUE(r.converged) << r.after.mean << " " << r.after.p95 << " after " << r.iterations;
+  EXPECT_GT(r.before.mean, 0.1);
+  EXPECT_LE(r.after.p95, 1e-4);
+  EXPECT_LT((X - m.V).rowwise().norm().maxCoeff(), 1e-3);
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if (fixed[v]) {
+      EXPECT_LT((X.row(v) - m.V.row(v)).norm(), 1e-15) << v;  // held (r^0.6 at r = 1 is 1 to an ulp)
+    }
+  EXPECT_EQ(quality::measure(m, X, quality::Target::kPlane).flipped_faces, 0);
+}
+
+TEST(AreaRefinement, AnIcospherePushedTowardAPoleComesBackToAnIsometry) {
+  // The unit icosphere's own chord triangles are the targets; the start slides every vertex
+  // toward the north pole (x + 0.4 e_z, normalized: caps crowded, the south spread). The
+  // minimum is a rotation of the icosphere: equal areas and angles.
+  mesh::TriMesh m = mesh::make_icosphere(2);
+  for (int v = 0; v < m.num_vertices(); ++v) m.V.row(v).normalize();
+  mesh::Vertices X = m.V;
+  for (int v = 0; v < m.num_vertices(); ++v) X.row(v) = (X.row(v) + Eigen::RowVector3d(0, 0, 0.4)).normalized();
+  omt::AreaRefineOptions o;
+  o.mean_tolerance = 1e-4;
+  o.p95_tolerance = 1e-3;
+  const omt::AreaRefinement r = omt::refine_sphere_areas(m, mesh::face_areas(m), X, o);
+  EXPECT_TRUE(r.ran);
+  EXPECT_TRUE(r.converged) << r.after.mean << " " << r.after.p95 << " after " << r.iterations;
+  EXPECT_GT(r.before.mean, 0.1);
+  const quality::MapQuality q = quality::measure(m, X, quality::Target::kSphere);
+  EXPECT_EQ(q.flipped_faces, 0);
+  EXPECT_TRUE(quality::covers_once(q.degree));
+  EXPECT_LT(q.angle_distortion_deg.max, 2.0);
+  EXPECT_LT((X.rowwise().norm().array() - 1).abs().maxCoeff(), 1e-12);
+}
+
+TEST(AreaRefinement, TheSquaresAreaPreservingDiskMapPreservesAreaFaceByFace) {
+  // A flat square's disk map: the seed's centroid map leaves the faces near the corners off
+  // their areas (mean |log ratio| ~0.03). The refinement brings the faces within the issue's
+  // bar (mean <= 0.02, p95 <= 0.1) with no flipped face, the boundary vertices on the circle
+  // in their order, the cells untouched. (Per face, exact areas are out of reach on a fixed
+  // triangulation: #faces - 1 area equations against 2 #interior + #boundary unknowns leave
+  // almost no freedom; what is left shrinks with the mesh size: 0.019 at 25 x 25, 0.012 at
+  // 40 x 40.) converged says whether the stated tolerances were met.
+  mesh::TriMesh m = mesh::make_grid(40);
+  omt::AreaPreservingOptions plain;
+  plain.refine.enabled = false;
+  const omt::AreaPreservingMap seed = omt::area_preserving_disk(m, plain);
+  EXPECT_FALSE(seed.refinement.ran);
+  const omt::AreaPreservingMap ap = omt::area_preserving_disk(m);
+  const omt::AreaRefinement& r = ap.refinement;
+  ASSERT_TRUE(r.ran);
+  const quality::MapQuality q0 = quality::measure(m, seed.positions, quality::Target::kPlane);
+  const quality::MapQuality q = quality::measure(m, ap.positions, quality::Target::kPlane);
+  EXPECT_NEAR(r.before.mean, q0.area_distortion_log_abs.mean, 1e-12);
+  EXPECT_NEAR(r.after.mean, q.area_distortion_log_abs.mean, 1e-12);
+  EXPECT_EQ(r.converged, r.after.mean <= r.mean_tolerance && r.after.p95 <= r.p95_tolerance);
+  EXPECT_GT(q0.area_distortion_log_abs.mean, 0.02);
+  EXPECT_LE(q.area_distortion_log_abs.mean, 0.02);
+  EXPECT_LE(q.area_distortion_log_abs.p95, 0.05);
+  EXPECT_LT(q.area_distortion_log_abs.mean, 0.5 * q0.area_distortion_log_abs.mean);
+  EXPECT_EQ(q.flipped_faces, 0);
+  for (const auto& loop : mesh::boundary_loops(m)) {
+    double turned = 0;  // the boundary's winding: once around
+    for (size_t i = 0; i < loop.size(); ++i) {
+      const Eigen::Vector2d a = ap.positions.row(loop[i]).head<2>(), b = ap.positions.row(loop[(i + 1) % loop.size()]).head<2>();
+      EXPECT_NEAR(a.norm(), 1.0, 1e-12) << loop[i];
+      turned += std::atan2(a.x() * b.y() - a.y() * b.x(), a.dot(b));
+    }
+    EXPECT_NEAR(std::abs(turned), 2 * std::numbers::pi, 1e-9);
+  }
+  EXPECT_EQ(ap.omt.cells.mass, seed.omt.cells.mass);
+}
+
+TEST(AreaRefinement, TheEllipsoidsSphereMapPreservesAreaFaceByFaceAndCoversOnce) {
+  mesh::TriMesh m = mesh::make_icosphere(3);
+  m.V.col(2) *= 3.0;
+  const omt::AreaPreservingMap ap = omt::area_preserving_sphere(m);
+  ASSERT_TRUE(ap.refinement.ran);
+  EXPECT_TRUE(ap.refinement.converged) << ap.refinement.after.mean << " " << ap.refinement.after.p95;
+  const quality::MapQuality q = quality::measure(m, ap.positions, quality::Target::kSphere);
+  EXPECT_LE(q.area_distortion_log_abs.mean, 0.01);
+  EXPECT_LE(q.area_distortion_log_abs.p95, 0.05);
+  EXPECT_LT(ap.refinement.after.mean, 0.5 * ap.refinement.before.mean);
+  EXPECT_EQ(q.flipped_faces, 0);
+  EXPECT_TRUE(quality::covers_once(q.degree));
+  EXPECT_LT((ap.positions.rowwise().norm().array() - 1).abs().maxCoeff(), 1e-12);
+}
+
+TEST(AreaRefinement, RegionWeightsSetTheFacesTargets) {
+  // Weight 4 on the vertices with x > 0: each face's target is its area times its corners'
+  // mean weight, and the refined map gives the faces those shares of the disk.
+  mesh::TriMesh m = mesh::make_hemisphere(16);
+  omt::AreaPreservingOptions o;
+  o.weights = Eigen::VectorXd::Ones(m.num_vertices());
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if (m.V(v, 0) > 0) o.weights[v] = 4;
+  const omt::AreaPreservingMap ap = omt::area_preserving_disk(m, o);
+  ASSERT_TRUE(ap.refinement.ran);
+  EXPECT_TRUE(ap.refinement.converged);
+  Eigen::VectorXd target = mesh::face_areas(m);
+  for (int f = 0; f < m.num_faces(); ++f)
+    target[f] *= (o.weights[m.F(f, 0)] + o.weights[m.F(f, 1)] + o.weights[m.F(f, 2)]) / 3;
+  const Eigen::VectorXd r = omt::abs_log_area_ratios(m.F, ap.positions, target);
+  EXPECT_LE(r.mean(), 0.01);
+  EXPECT_NEAR(r.mean(), ap.refinement.after.mean, 1e-12);
+  // Against the unweighted areas the map is far off: the weights are what it follows.
+  EXPECT_GT(quality::measure(m, ap.positions, quality::Target::kPlane).area_distortion_log_abs.mean, 0.3);
+}
+
+TEST(AreaRefinement, PhiTAFoldedStartAndNoRefineAreLeftAlone) {
+  mesh::TriMesh m = mesh::make_hemisphere(12);
+  omt::AreaPreservingOptions o;
+  o.t = 0.5;  // phi_t is between the area-preserving and the conformal map by design
+  EXPECT_FALSE(omt::area_preserving_disk(m, o).refinement.ran);
+  // A folded start: vertex 0 (the centre) pushed across its ring.
+  mesh::TriMesh d = mesh::make_disk(6);
+  mesh::Vertices X = d.V;
+  X.row(0) << 0.9, 0.0, 0.0;
+  ASSERT_GT(quality::measure(d, X, quality::Target::kPlane).flipped_faces, 0);
+  const mesh::Vertices before = X;
+  const omt::AreaRefinement r = omt::refine_disk_areas(d, mesh::face_areas(d), X, boundary_of(d), {});
+  EXPECT_FALSE(r.ran);
+  EXPECT_EQ(X, before);
+  omt::AreaRefineOptions off;
+  off.enabled = false;
+  X = d.V;
+  EXPECT_FALSE(omt::refine_disk_areas(d, mesh::face_areas(d), X, boundary_of(d), off).ran);
+  EXPECT_EQ(X, d.V);
+}
