@@ -263,8 +263,10 @@ class FaceNewton {
     return E;
   }
 
-  // One damped Newton step at theta; returns the Newton decrement -g.d (0: no step taken).
-  double step(mesh::Vertices& X, double theta) {
+  // One damped Newton step at theta; returns the Newton decrement -g.d (0: no step taken)
+  // and sets `before` to the energy at the step's start.
+  double step(mesh::Vertices& X, double theta, double& before) {
+    before = std::numeric_limits<double>::infinity();
     const long nf = static_cast<long>(faces_.size());
     geometry_.begin(X);
     for (size_t r = 0; r < dof_.size(); ++r)
@@ -303,10 +305,10 @@ class FaceNewton {
     if (!analyzed_) llt_.analyzePattern(H_), analyzed_ = true;
     llt_.factorize(H_);
     if (llt_.info() != Eigen::Success) return 0;
+    const double E0 = before = energy(X, theta);
     const Eigen::VectorXd d = -llt_.solve(g);
     const double decrement = -g.dot(d);
     if (!(decrement > 0) || !d.allFinite()) return 0;
-    const double E0 = energy(X, theta);
     double t = std::min(1.0, 0.9 * max_step(X, d));
     mesh::Vertices trial = X;
     for (int k = 0; k < 40; ++k, t *= 0.5) {
@@ -443,8 +445,8 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
     ++out.stages;
     for (int k = 0; k < 50 && out.iterations < opt.max_iterations && !out.converged; ++k) {
       if (k > 0 && !std::is_same_v<Geometry, PlaneGeometry>) set_references();
-      const double E = newton.energy(X, theta);
-      const double decrement = newton.step(X, theta);
+      double E = 0;
+      const double decrement = newton.step(X, theta, E);
       ++out.iterations;
       out.after = abs_log_stats(m.F, X, target);
       out.converged = met(out.after);
