@@ -122,7 +122,9 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   // (2) sites p_i = phi(v_i), masses nu_i scaled to the disk's area pi inside solve_omt;
   // (3) the OMT map tau from the uniform disk to (p, nu).
   Points sites = out.conformal.positions.leftCols(2);
-  out.omt = transport_to_mesh_sites(m, Domain::unit_disk(), sites, nu, opt.omt);
+  OmtOptions transport = opt.omt;
+  if (opt.multilevel_from > 0 && nv >= opt.multilevel_from) transport.multilevel = true;
+  out.omt = transport_to_mesh_sites(m, Domain::unit_disk(), sites, nu, transport);
   // (4) tau^{-1} o phi: each vertex goes to the centroid of its cell W_i = tau^{-1}(p_i).
   out.positions = mesh::Vertices::Zero(nv, 3);
   out.positions.leftCols(2) = out.omt.cells.centroid;

@@ -17,6 +17,13 @@ namespace brenier::omt {
 struct AreaPreservingOptions {
   conformal::ConformalOptions conformal;
   OmtOptions omt;
+  /// The disk's transport takes the coarse-to-fine start (OmtOptions::multilevel, with its
+  /// first-step trial) from this many vertices on (0: as omt says). The 99,731-vertex disk
+  /// map spent 28 Newton iterations and 284 trial diagrams in the damped phase from the
+  /// plain start (15 s) and 8 on the fine level from the coarse ones (7.7 s); lion-head
+  /// (8.4K) and mannequin-devil (13K) were a little slower with it (bench/RESULTS.md,
+  /// session 26).
+  int multilevel_from = 50000;
   /// Region-of-interest multipliers of the vertex masses (sec. 6.3), one per vertex, > 0;
   /// empty: all 1. A region with weight 4 gets four times its share of the disk.
   Eigen::VectorXd weights;

@@ -121,6 +121,27 @@ TEST(RealAreaPreserving, EveryDiskMeshGetsAnUnfoldedAreaPreservingMap) {
   }
 }
 
+TEST(RealAreaPreserving, TheCoarseToFineStartGivesTheSameMap) {
+  // AreaPreservingOptions::multilevel_from: large disk maps start the transport from the
+  // coarse levels. The transport's solution is unique (up to a constant height), so the map
+  // from that start must be the plain start's, cell for cell, to the mass tolerance.
+  mesh::CleanMesh cm = mesh::load_mesh((fs::path(BRENIER_TEST_DATA_DIR) / "lion-head.off").string());
+  ASSERT_TRUE(cm.valid());
+  omt::AreaPreservingOptions plain, coarse;
+  plain.multilevel_from = 0;
+  coarse.multilevel_from = 1000;
+  plain.refine.enabled = coarse.refine.enabled = false;
+  const omt::AreaPreservingMap a = omt::area_preserving_disk(cm.mesh, plain);
+  const omt::AreaPreservingMap b = omt::area_preserving_disk(cm.mesh, coarse);
+  EXPECT_EQ(a.omt.levels, 1);
+  EXPECT_GT(b.omt.levels, 1) << "the first step from the plain start is damped here: the coarse start is taken";
+  ASSERT_TRUE(a.omt.converged && b.omt.converged);
+  EXPECT_LE(b.omt.max_relative_error, 1e-8);
+  EXPECT_EQ(b.omt.cells.empty_cells, 0);
+  EXPECT_LE((a.positions - b.positions).rowwise().norm().maxCoeff(), 1e-6);
+  EXPECT_EQ(quality::measure(cm.mesh, b.positions, quality::Target::kPlane).flipped_faces, 0);
+}
+
 TEST(RealAreaPreserving, AreaDistortionFallsFarBelowTheConformalMaps) {
   expect_area_distortion_below(
       {"lion-head.off", "cylinder.off", "cylinder_locally_refined.off", "mannequin-devil.off"},
