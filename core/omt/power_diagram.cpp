@@ -381,35 +381,84 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& psi, const
   return out;
 }
 
-std::vector<int> PowerDiagrams::locate(const Eigen::VectorXd& h, const Points& queries) const {
-  const int n = static_cast<int>(sites_.rows());
+namespace {
+
+// Greedy walk (as CGAL's nearest_power_vertex, but from a given vertex): move to a neighbour
+// of smaller power distance to p until none is; on a regular triangulation the local
+// minimum is the global one. Exact predicates decide every comparison.
+RT::Vertex_handle walk_to_nearest(const RT& rt, RT::Vertex_handle v, const K::Point_2& p) {
+  const auto closer = K().compare_power_distance_2_object();
+  for (bool moved = true; moved;) {
+    moved = false;
+    RT::Vertex_circulator c = rt.incident_vertices(v), first = c;
+    if (c == nullptr) break;
+    do {
+      if (!rt.is_infinite(c) && closer(p, c->point(), v->point()) == CGAL::SMALLER) {
+        v = c;
+        moved = true;
+        break;
+      }
+    } while (++c != first);
+  }
+  return v;
+}
+
+void check_queries(const Eigen::VectorXd& h, const Points& queries, int n) {
   if (h.size() != n) invalid("heights: " + std::to_string(h.size()) + " for " + std::to_string(n) + " sites");
   if (!h.allFinite()) invalid("heights must be finite");
   if (!queries.allFinite()) invalid("query points must be finite");
+}
+
+}  // namespace
+
+std::vector<int> PowerDiagrams::locate(const Eigen::VectorXd& h, const Points& queries) const {
+  check_queries(h, queries, static_cast<int>(sites_.rows()));
   RT rt;
   triangulate(sites_, offsets(h), order_, false, rt);
   std::vector<int> out(queries.rows(), -1);
   if (rt.number_of_vertices() == 0) return out;
-  // Greedy walk (as CGAL's nearest_power_vertex, but from the previous answer): move to a
-  // neighbour of smaller power distance until none is; on a regular triangulation the local
-  // minimum is the global one. Exact predicates decide every comparison.
-  const auto closer = K().compare_power_distance_2_object();
   RT::Vertex_handle v = rt.finite_vertices_begin();
   for (Eigen::Index q = 0; q < queries.rows(); ++q) {
-    const K::Point_2 p(queries(q, 0), queries(q, 1));
-    for (bool moved = true; moved;) {
-      moved = false;
-      RT::Vertex_circulator c = rt.incident_vertices(v), first = c;
-      if (c == nullptr) break;
+    v = walk_to_nearest(rt, v, K::Point_2(queries(q, 0), queries(q, 1)));
+    out[q] = v->info();
+  }
+  return out;
+}
+
+Eigen::VectorXd PowerDiagrams::smoothed_max(const Eigen::VectorXd& h, const Points& queries, double eps) const {
+  check_queries(h, queries, static_cast<int>(sites_.rows()));
+  if (!(eps > 0)) invalid("the smoothing width must be positive");
+  RT rt;
+  triangulate(sites_, offsets(h), order_, false, rt);
+  Eigen::VectorXd out(queries.rows());
+  if (rt.number_of_vertices() == 0) return out.setConstant(-std::numeric_limits<double>::infinity());
+  std::vector<int> stamp(sites_.rows(), -1);
+  std::vector<RT::Vertex_handle> queue;
+  RT::Vertex_handle v = rt.finite_vertices_begin();
+  for (Eigen::Index q = 0; q < queries.rows(); ++q) {
+    const Vec2 x = queries.row(q);
+    v = walk_to_nearest(rt, v, K::Point_2(x.x(), x.y()));
+    auto value = [&](RT::Vertex_handle w) { return x.dot(Vec2(sites_.row(w->info()))) + h[w->info()]; };
+    const double top = value(v);
+    double sum = 0;
+    queue.assign(1, v);
+    stamp[v->info()] = static_cast<int>(q);
+    while (!queue.empty()) {
+      const RT::Vertex_handle w = queue.back();
+      queue.pop_back();
+      const double t = (value(w) - top) / eps;
+      if (!(t > -40)) continue;  // (the maximum itself always counts: t = 0)
+      sum += std::exp(t);
+      RT::Vertex_circulator c = rt.incident_vertices(w), first = c;
+      if (c == nullptr) continue;
       do {
-        if (!rt.is_infinite(c) && closer(p, c->point(), v->point()) == CGAL::SMALLER) {
-          v = c;
-          moved = true;
-          break;
+        if (!rt.is_infinite(c) && stamp[c->info()] != q) {
+          stamp[c->info()] = static_cast<int>(q);
+          queue.push_back(c);
         }
       } while (++c != first);
     }
-    out[q] = v->info();
+    out[q] = top + eps * std::log(sum);
   }
   return out;
 }

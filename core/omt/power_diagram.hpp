@@ -124,6 +124,16 @@ class PowerDiagrams {
   /// For each query point x, the site whose cell at heights h holds it (argmax_i <x, y_i> +
   /// h_i, exact predicates; ties go to either); the plane's cells, unclipped by the domain.
   std::vector<int> locate(const Eigen::VectorXd& h, const Points& queries) const;
+  /// For each query point x, the smoothed maximum  eps log sum_i exp((<x, y_i> + h_i - M) /
+  /// eps) + M,  M = max_i <x, y_i> + h_i, summed over the terms within 40 eps of M (each one
+  /// left out adds under 4e-18 of the sum). Those sites' lifted points lie below a plane, so
+  /// they form a connected set of the regular triangulation's vertices (the convex lower
+  /// hull minus a linear function is convex and linear on each triangle, so every edge that
+  /// crosses the segment between two of them has an endpoint among them): a walk to the
+  /// maximum and a search through neighbours from it find them all, in time proportional to
+  /// their number instead of to the number of sites. Sites hidden at heights h (above the
+  /// lower hull) are left out.
+  Eigen::VectorXd smoothed_max(const Eigen::VectorXd& h, const Points& queries, double eps) const;
 
  private:
   struct Triangulation;

@@ -205,6 +205,32 @@ TEST(PowerCells, DiagramsUpdatedByFlipsEqualDiagramsBuiltAnew) {
   EXPECT_GT(flipped_steps, 10);
 }
 
+TEST(PowerCells, TheLocalSmoothedMaximumEqualsTheSumOverEverySite) {
+  // PowerDiagrams::smoothed_max sums only the sites found from the maximum through the
+  // regular triangulation; the dense log-sum-exp over every site is the closed form. Heights
+  // near Voronoi's (-|y|^2 / 2 plus up to 1e-4, against a squared spacing of ~1e-2) hide no
+  // site, so the two must agree for a width that keeps one term (1e-4), a few (0.02) and
+  // all of them (5: the search must then reach every site).
+  const Points y = random_in_disk(400, 7);
+  const Points q = random_in_disk(300, 8, 1.3);
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> U(0.0, 1e-4);
+  Eigen::VectorXd h(y.rows());
+  for (int i = 0; i < y.rows(); ++i) h[i] = U(rng) - 0.5 * y.row(i).squaredNorm();
+  const omt::PowerDiagrams diagrams(Domain::unit_disk(), y);
+  for (double eps : {1e-4, 0.02, 5.0}) {
+    SCOPED_TRACE(eps);
+    const Eigen::VectorXd local = diagrams.smoothed_max(h, q, eps);
+    for (int k = 0; k < q.rows(); ++k) {
+      const Eigen::VectorXd v = y * q.row(k).transpose() + h;
+      const double top = v.maxCoeff();
+      const double dense = top + eps * std::log((v.array() - top).unaryExpr([&](double t) { return std::exp(t / eps); }).sum());
+      ASSERT_NEAR(local[k], dense, 1e-13 * (1 + std::abs(dense))) << "query " << k;
+    }
+  }
+  EXPECT_ERROR(diagrams.smoothed_max(h, q, 0), ErrorCode::kInvalidArgument, "smoothing width");
+}
+
 TEST(PowerCells, RefusesCoincidentSites) {
   Points y(3, 2);
   y << 0, 0, 0.5, 0, 0, 0;
