@@ -432,33 +432,39 @@ Eigen::VectorXd PowerDiagrams::smoothed_max(const Eigen::VectorXd& h, const Poin
   triangulate(sites_, offsets(h), order_, false, rt);
   Eigen::VectorXd out(queries.rows());
   if (rt.number_of_vertices() == 0) return out.setConstant(-std::numeric_limits<double>::infinity());
-  std::vector<int> stamp(sites_.rows(), -1);
-  std::vector<RT::Vertex_handle> queue;
-  RT::Vertex_handle v = rt.finite_vertices_begin();
-  for (Eigen::Index q = 0; q < queries.rows(); ++q) {
-    const Vec2 x = queries.row(q);
-    v = walk_to_nearest(rt, v, K::Point_2(x.x(), x.y()));
-    auto value = [&](RT::Vertex_handle w) { return x.dot(Vec2(sites_.row(w->info()))) + h[w->info()]; };
-    const double top = value(v);
-    double sum = 0;
-    queue.assign(1, v);
-    stamp[v->info()] = static_cast<int>(q);
-    while (!queue.empty()) {
-      const RT::Vertex_handle w = queue.back();
-      queue.pop_back();
-      const double t = (value(w) - top) / eps;
-      if (!(t > -40)) continue;  // (the maximum itself always counts: t = 0)
-      sum += std::exp(t);
-      RT::Vertex_circulator c = rt.incident_vertices(w), first = c;
-      if (c == nullptr) continue;
-      do {
-        if (!rt.is_infinite(c) && stamp[c->info()] != q) {
-          stamp[c->info()] = static_cast<int>(q);
-          queue.push_back(c);
-        }
-      } while (++c != first);
+  // Queries are independent: each thread takes a contiguous run of them (consecutive queries
+  // are usually near each other, so each walk starts near its answer) with its own marks.
+#pragma omp parallel
+  {
+    std::vector<int> stamp(sites_.rows(), -1);
+    std::vector<RT::Vertex_handle> queue;
+    RT::Vertex_handle v = rt.finite_vertices_begin();
+#pragma omp for schedule(static)
+    for (Eigen::Index q = 0; q < queries.rows(); ++q) {
+      const Vec2 x = queries.row(q);
+      v = walk_to_nearest(rt, v, K::Point_2(x.x(), x.y()));
+      auto value = [&](RT::Vertex_handle w) { return x.dot(Vec2(sites_.row(w->info()))) + h[w->info()]; };
+      const double top = value(v);
+      double sum = 0;
+      queue.assign(1, v);
+      stamp[v->info()] = static_cast<int>(q);
+      while (!queue.empty()) {
+        const RT::Vertex_handle w = queue.back();
+        queue.pop_back();
+        const double t = (value(w) - top) / eps;
+        if (!(t > -40)) continue;  // (the maximum itself always counts: t = 0)
+        sum += std::exp(t);
+        RT::Vertex_circulator c = rt.incident_vertices(w), first = c;
+        if (c == nullptr) continue;
+        do {
+          if (!rt.is_infinite(c) && stamp[c->info()] != q) {
+            stamp[c->info()] = static_cast<int>(q);
+            queue.push_back(c);
+          }
+        } while (++c != first);
+      }
+      out[q] = top + eps * std::log(sum);
     }
-    out[q] = top + eps * std::log(sum);
   }
   return out;
 }
