@@ -11,7 +11,9 @@ namespace brenier::process {
 /// CHOLMOD's ordering): faster transports on 2 cores (bench/RESULTS.md), and the spinning
 /// no longer takes cores from other jobs and RPC threads of the server. Returns if the exec
 /// fails.
-/// It also sets OPENBLAS_NUM_THREADS=1 unless set (see process.cpp).
+/// It also sets OPENBLAS_NUM_THREADS=1 unless set, and asks glibc's malloc for transparent
+/// huge pages (GLIBC_TUNABLES glibc.malloc.hugetlb=1) unless that tunable is set (see
+/// process.cpp); it re-executes when either was missing.
 void reexec_with_passive_openmp(char** argv);
 
 /// Called first in main(): glibc's malloc keeps up to 32 MB freed at the top of each arena
