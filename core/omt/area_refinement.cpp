@@ -147,6 +147,10 @@ struct SphereGeometry {
     const double n = (b - a).cross(c - a).norm();
     return n > 0 ? a.dot(b.cross(c)) / n : 1;
   }
+  static double chord_area(const mesh::Vertices& X, const mesh::Faces& F, int f) {
+    const Eigen::Vector3d a = at(X, F(f, 0)), b = at(X, F(f, 1)), c = at(X, F(f, 2));
+    return 0.5 * (b - a).cross(c - a).norm();
+  }
   // At each step's start: tangent bases at X, where the moves start from.
   void begin(const mesh::Vertices& X) {
     X0 = &X;
@@ -430,14 +434,34 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
   // The reference triangles, of the target areas in the energy's measure (on the sphere the
   // chord areas times their planes' distances from the centre, read at the current map, so
   // that the targets are the chord areas the result is measured by), their total the map's.
-  // The total is set once: rescaled at every step, the energy would gain by shrinking the
-  // map's volume on the sphere (smaller targets everywhere) instead of equalizing areas.
+  // On the plane the total is set once. On the sphere the map's total in the energy's measure
+  // is not fixed (a coarse mesh's inscribed polyhedron can hold far less volume than the
+  // start's), so the targets' common scale sigma is refitted before every step to the one
+  // that minimizes the area term sum_f t_f (r_f / sigma + sigma / r_f) at the current map
+  // (r_f = D_f sigma, here the chord area over the target): sigma^2 = sum t_f r_f /
+  // sum t_f / r_f. The steps and the refits then descend one function, which is invariant
+  // under scaling every r_f; with a scale fixed at the start, the energy's minimum sat where
+  // the map's total matched that scale, not where its areas were equal (a cube's map stayed
+  // at mean |log area ratio| 0.068 though the inscribed cube's is 0). (Refitting to the
+  // plain ratio of totals instead was no descent: it drifted toward smaller volumes.)
   std::vector<detail::BarrierFace> faces(m.num_faces());
   double scale = 0;
   auto set_references = [&] {
     Eigen::VectorXd t(m.num_faces());
     for (int f = 0; f < m.num_faces(); ++f) t[f] = target[f] * Geometry::measure(X, m.F, f);
-    if (scale == 0) scale = areas(X) / t.sum();
+    if constexpr (!std::is_same_v<Geometry, PlaneGeometry>) {
+      double sum_tr = 0, sum_t_over_r = 0;
+      for (int f = 0; f < m.num_faces(); ++f) {
+        const double r = Geometry::chord_area(X, m.F, f) / target[f];
+        sum_tr += t[f] * r;
+        sum_t_over_r += t[f] / r;
+      }
+      // (Never degenerate here: the start has det > 0 on every face, and the steps keep it.)
+      BRENIER_CHECK(sum_tr > 0 && std::isfinite(sum_t_over_r), "a degenerate face in the sphere's refinement");
+      scale = std::sqrt(sum_tr / sum_t_over_r);
+    } else if (scale == 0) {
+      scale = areas(X) / t.sum();
+    }
     for (int f = 0; f < m.num_faces(); ++f) faces[f] = reference(m, f, t[f] * scale);
   };
   set_references();

@@ -81,6 +81,30 @@ TEST(AreaRefinement, AnIcospherePushedTowardAPoleComesBackToAnIsometry) {
   EXPECT_LT((X.rowwise().norm().array() - 1).abs().maxCoeff(), 1e-12);
 }
 
+TEST(AreaRefinement, ACoarsePolyhedronComesBackThoughItsVolumeChanged) {
+  // The same on the icosahedron (12 vertices), pushed toward the pole (x + 0.2 e_z,
+  // normalized): its inscribed polyhedron holds a different volume than the regular one, so
+  // a target scale fixed at the start cannot be met by equal areas (with it, the refinement
+  // ended worse than its start and kept it); the scale refitted before every step
+  // (area_refinement.cpp) finds the regular icosahedron again. (A push of 0.4 with a tilt is
+  // not recovered: 0.18 after 100 steps; bench/RESULTS.md.)
+  mesh::TriMesh m = mesh::make_icosphere(0);
+  for (int v = 0; v < m.num_vertices(); ++v) m.V.row(v).normalize();
+  mesh::Vertices X = m.V;
+  for (int v = 0; v < m.num_vertices(); ++v) X.row(v) = (X.row(v) + Eigen::RowVector3d(0, 0, 0.2)).normalized();
+  omt::AreaRefineOptions o;
+  o.mean_tolerance = 1e-4;
+  o.p95_tolerance = 1e-3;
+  const omt::AreaRefinement r = omt::refine_sphere_areas(m, mesh::face_areas(m), X, o);
+  EXPECT_TRUE(r.ran);
+  EXPECT_GT(r.before.mean, 0.1);
+  EXPECT_TRUE(r.converged) << r.after.mean << " " << r.after.p95 << " after " << r.iterations;
+  EXPECT_FALSE(r.kept_start);
+  const quality::MapQuality q = quality::measure(m, X, quality::Target::kSphere);
+  EXPECT_EQ(q.flipped_faces, 0);
+  EXPECT_TRUE(quality::covers_once(q.degree));
+}
+
 TEST(AreaRefinement, TheSquaresAreaPreservingDiskMapPreservesAreaFaceByFace) {
   // A flat square's disk map: the seed's centroid map leaves the faces near the corners off
   // their areas (mean |log ratio| ~0.03). The refinement brings the faces within the issue's
