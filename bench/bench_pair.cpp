@@ -23,7 +23,7 @@
 using namespace brenier;
 
 int main(int argc, char** argv) {
-  process::reexec_with_passive_openmp(argv);  // as the tools run
+  process::reexec_with_runtime_settings(argv);  // as the tools run
   process::tune_allocator();
   if (argc < 3) {
     std::fprintf(stderr, "usage: bench_pair A B [repeats] [threads]\n");

@@ -18,7 +18,7 @@
 using namespace brenier;
 
 int main(int argc, char** argv) {
-  process::reexec_with_passive_openmp(argv);
+  process::reexec_with_runtime_settings(argv);
   process::tune_allocator();
   const int density_level = argc > 1 ? std::atoi(argv[1]) : 5;
   const int site_level = argc > 2 ? std::atoi(argv[2]) : 4;

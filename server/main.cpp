@@ -239,7 +239,7 @@ int serve(const Flags& f) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  brenier::process::reexec_with_passive_openmp(argv);
+  brenier::process::reexec_with_runtime_settings(argv);
   brenier::process::tune_allocator();
   install_stop_handlers();
   CLI::App app{"brenierd: conformal maps, optimal-transport maps and shape distances as a gRPC service"};

@@ -415,8 +415,8 @@ void check_targets(const mesh::TriMesh& m, const Eigen::VectorXd& target, const 
 
 // The staged minimization of area_refinement.hpp: theta = 0.999, then 0.9999, each stage
 // ended when the Newton decrement falls below 1e-7 of the energy or after 50 steps, the
-// whole when the tolerances hold or the budget is spent. `areas(X)` gives the faces' areas
-// in the energy's measure (their total scales the targets).
+// whole when the tolerances hold or the budget is spent. `areas(X)` gives the faces' total area
+// in the energy's measure (on the plane it sets the targets' scale; the sphere refits it).
 // free[v]: vertex v's number of unknowns (Dof::count).
 template <class Geometry, class Areas>
 AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,

@@ -39,7 +39,7 @@ int exit_code_for(brenier::ErrorCode code) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  brenier::process::reexec_with_passive_openmp(argv);
+  brenier::process::reexec_with_runtime_settings(argv);
   brenier::process::tune_allocator();
   CLI::App app{"brenier-compute: conformal and optimal-mass-transport maps of surfaces"};
   app.require_subcommand(1);

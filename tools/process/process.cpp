@@ -8,7 +8,7 @@
 
 namespace brenier::process {
 
-void reexec_with_passive_openmp(char** argv) {
+void reexec_with_runtime_settings(char** argv) {
   bool changed = false;
   if (std::getenv("OMP_WAIT_POLICY") == nullptr) {
     ::setenv("OMP_WAIT_POLICY", "passive", 1);
@@ -21,8 +21,8 @@ void reexec_with_passive_openmp(char** argv) {
   // Transparent huge pages for malloc's memory (glibc >= 2.35 reads this tunable at start;
   // the kernel's default THP mode, "madvise", gives them only to memory that asks). The
   // regular triangulations, cell arrays and CHOLMOD factors of a large transport are
-  // touched all over: at 1M sites this took the page faults from ~1M to ~36K and the
-  // solve from 46-51 s to 30-37 s (bench/RESULTS.md). A user's own setting of it is kept.
+  // touched all over: at 1M sites this took the page faults from 1.04M to ~38K and the
+  // solve from 44.6-57 s to 32-40 s (bench/RESULTS.md). A user's own setting of it is kept.
   const char* tunables = std::getenv("GLIBC_TUNABLES");
   const std::string have = tunables ? tunables : "";
   if (have.find("glibc.malloc.hugetlb") == std::string::npos) {

@@ -5,16 +5,17 @@
 
 namespace brenier::process {
 
-/// Called first in main(): unless OMP_WAIT_POLICY is set, sets it to passive and re-executes
-/// the program (libgomp reads it once, when it is loaded, before main). Idle OpenMP threads
-/// then sleep instead of spinning through the serial parts (CGAL's regular triangulation,
-/// CHOLMOD's ordering): faster transports on 2 cores (bench/RESULTS.md), and the spinning
-/// no longer takes cores from other jobs and RPC threads of the server. Returns if the exec
+/// Called first in main(): sets the runtime's start-up settings that were not set and
+/// re-executes the program once for them. Unless OMP_WAIT_POLICY is set, sets it to passive
+/// (libgomp reads it once, when it is loaded, before main). Idle OpenMP threads then sleep
+/// instead of spinning through the serial parts (CGAL's regular triangulation, CHOLMOD's
+/// ordering): faster transports on 2 cores (bench/RESULTS.md), and the spinning no longer
+/// takes cores from other jobs and RPC threads of the server. Returns if the exec
 /// fails.
 /// It also sets OPENBLAS_NUM_THREADS=1 unless set, and asks glibc's malloc for transparent
 /// huge pages (GLIBC_TUNABLES glibc.malloc.hugetlb=1) unless that tunable is set (see
 /// process.cpp); it re-executes when either was missing.
-void reexec_with_passive_openmp(char** argv);
+void reexec_with_runtime_settings(char** argv);
 
 /// Called first in main(): glibc's malloc keeps up to 32 MB freed at the top of each arena
 /// and serves blocks below 16 MB from the arenas instead of returning memory to the kernel
