@@ -6,12 +6,12 @@
 //     sum_f A_f [theta (D_f + 1 / D_f) + (1 - theta) |J_f|_F^2 / D_f],
 // J_f the face's Jacobian against its surface triangle scaled to the target area A_f and
 // D_f = det J_f its area ratio. On the sphere D_f is measured first by volume,
-// det(a, b, c) / 2 A_f (a barrier against turning, from any start), then, where the tolerances
-// are not met, by the chord area |(b - a) x (c - a)| / 2 A_f, the measure the result is judged
-// by (area_refinement.cpp says why both). The first term is least at D_f = 1, the face's own area; the second,
-// the MIPS energy, is scale-free and keeps the shapes, which makes the minimizer unique and
-// keeps the triangles from turning into slivers; theta = 0.999, then 0.9999, lets the area
-// term win. The minimization is a projected Newton method (each face's Hessian with its
+// det(a, b, c) / 2 A_f (a barrier against turning, from any start), then, where the
+// tolerances are not met, by the chord area |(b - a) x (c - a)| / 2 A_f, the measure the
+// result is judged by (area_refinement.cpp says why both). The first term is least at
+// D_f = 1, the face's own area; the second, the MIPS energy, is scale-free and keeps the
+// shapes, which makes the minimizer unique and keeps the triangles from turning into slivers;
+// theta = 0.999, then 0.9999, lets the area term win. The minimization is a projected Newton method (each face's Hessian with its
 // negative eigenvalues clamped, CHOLMOD for the system), the step cut before any face
 // degenerates (the plane: in closed form) and by Armijo's rule; the energy is infinite on a
 // degenerate face, so from a map with no flipped face no face flips, and on the sphere a step
