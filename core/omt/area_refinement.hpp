@@ -38,8 +38,9 @@ struct AreaRefineOptions {
   double p95_tolerance = 0.05;
   /// The disk's boundary vertices slide along the circle (false: held where they are).
   bool slide_boundary = true;
-  /// Newton steps over all stages of one measure (the sphere's chord stages, after the volume
-  /// ones, have their own budget of this size; they seldom use more than a few steps).
+  /// Newton steps over all stages of one run. On the sphere the volume run has this budget, and
+  /// so has each chord run after it (from its result and, if still short, from the start);
+  /// the chord runs seldom use more than a few steps.
   int max_iterations = 100;
 };
 
