@@ -18,7 +18,9 @@
 // is also kept only if the map still covers the sphere once. The disk's boundary vertices
 // slide along the circle (a face with three corners there could not change its area if they
 // were held). Stops when the stated tolerances hold (mean and 95th percentile of |log area
-// ratio|) or after the step budget, saying which; a result worse than its start is not kept.
+// ratio|) or after the step budget, saying which; on the sphere a volume stage also ends at a
+// step that raises the mean |log area ratio|, a chord stage at one that gains less than 1 %.
+// A result worse than its start is not kept.
 #pragma once
 
 #include <Eigen/Core>
