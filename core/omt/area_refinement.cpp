@@ -104,6 +104,9 @@ struct PlaneGeometry {
   }
   void begin(const mesh::Vertices&) {}
   static double measure(const mesh::Vertices&, const mesh::Faces&, int) { return 1; }
+  static double chord_area(const mesh::Vertices& X, const mesh::Faces& F, int f) {
+    return 0.5 * edges(X, detail::BarrierFace{{F(f, 0), F(f, 1), F(f, 2)}, {}, 0}).determinant();
+  }
   void move(mesh::Vertices& Y, int row, const Eigen::Vector2d& step) const { Y.row(row).head<2>() += step.transpose(); }
   bool valid(const mesh::Vertices&) const { return true; }  // the finite energy says it all
 
@@ -450,15 +453,13 @@ void check_targets(const mesh::TriMesh& m, const Eigen::VectorXd& target, const 
 
 // The staged minimization of area_refinement.hpp: theta = 0.999, then 0.9999, each stage
 // ended when the Newton decrement falls below 1e-7 of the energy or after 50 steps, the
-// whole when the tolerances hold or the budget is spent. `areas(X)` gives the faces' total area
-// in the energy's measure (on the plane it sets the targets' scale; the sphere refits it).
-// free[v]: vertex v's number of unknowns (Dof::count). Given min_progress, a stage also ends
+// whole when the tolerances hold or the budget is spent. free[v]: vertex v's number of unknowns (Dof::count). Given min_progress, a stage also ends
 // at a step that cuts the mean |log area ratio| by less than that fraction (0: at a step
 // that raises it).
-template <class Geometry, class Areas>
+template <class Geometry>
 AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
                       const std::vector<char>& free, const AreaRefineOptions& opt, Geometry& geometry,
-                      const Areas& areas, std::optional<double> min_progress = std::nullopt) {
+                      std::optional<double> min_progress = std::nullopt) {
   const auto t0 = std::chrono::steady_clock::now();
   AreaRefinement out;
   out.ran = true;
@@ -472,9 +473,11 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
   // the volume measure, the chord areas times their planes' distances from the centre, read at
   // the current map, so that the targets are the chord areas the result is measured by; in the
   // chord measure the chord areas themselves), their total the map's.
-  // On the plane the total is set once. On the sphere the map's total in the energy's measure
-  // is not fixed (a coarse mesh's inscribed polyhedron can hold far less volume than the
-  // start's), so the targets' common scale sigma is refitted before every step to the one
+  // The map's total is not fixed: on the sphere a coarse mesh's inscribed polyhedron can hold
+  // far less volume than the start's, on the disk the boundary vertices slide along the circle
+  // and so change the inscribed polygon's area (an open cube of 8 faces: 0.043 with the scale
+  // set once at the start, 0.0096 refitted). So the targets' common scale sigma is refitted
+  // before every step to the one
   // that minimizes the area term sum_f t_f (r_f / sigma + sigma / r_f) at the current map
   // (r_f = D_f sigma, here the chord area over the target): sigma^2 = sum t_f r_f /
   // sum t_f / r_f. The steps and the refits then descend one function, which is invariant
@@ -483,23 +486,18 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
   // at mean |log area ratio| 0.068 though the inscribed cube's is 0). (Refitting to the
   // plain ratio of totals instead was no descent: it drifted toward smaller volumes.)
   std::vector<detail::BarrierFace> faces(m.num_faces());
-  double scale = 0;
   auto set_references = [&] {
     Eigen::VectorXd t(m.num_faces());
     for (int f = 0; f < m.num_faces(); ++f) t[f] = target[f] * geometry.measure(X, m.F, f);
-    if constexpr (!std::is_same_v<Geometry, PlaneGeometry>) {
-      double sum_tr = 0, sum_t_over_r = 0;
-      for (int f = 0; f < m.num_faces(); ++f) {
-        const double r = Geometry::chord_area(X, m.F, f) / target[f];
-        sum_tr += t[f] * r;
-        sum_t_over_r += t[f] / r;
-      }
-      // (Never degenerate here: the start has det > 0 on every face, and the steps keep it.)
-      BRENIER_CHECK(sum_tr > 0 && std::isfinite(sum_t_over_r), "a degenerate face in the sphere's refinement");
-      scale = std::sqrt(sum_tr / sum_t_over_r);
-    } else if (scale == 0) {
-      scale = areas(X) / t.sum();
+    double sum_tr = 0, sum_t_over_r = 0;
+    for (int f = 0; f < m.num_faces(); ++f) {
+      const double r = Geometry::chord_area(X, m.F, f) / target[f];
+      sum_tr += t[f] * r;
+      sum_t_over_r += t[f] / r;
     }
+    // (Never degenerate here: the start has no degenerate face, and the steps keep it so.)
+    BRENIER_CHECK(sum_tr > 0 && std::isfinite(sum_t_over_r), "a degenerate face in the area refinement");
+    const double scale = std::sqrt(sum_tr / sum_t_over_r);
     for (int f = 0; f < m.num_faces(); ++f) faces[f] = reference(m, f, t[f] * scale);
   };
   set_references();
@@ -512,7 +510,7 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
     if (out.converged || out.iterations >= opt.max_iterations || n == 0) break;
     ++out.stages;
     for (int k = 0; k < 50 && out.iterations < opt.max_iterations && !out.converged; ++k) {
-      if (k > 0 && !std::is_same_v<Geometry, PlaneGeometry>) set_references();
+      if (k > 0) set_references();
       double E = 0;
       const double decrement = newton.step(X, theta, E);
       ++out.iterations;
@@ -535,44 +533,34 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
   return out;
 }
 
+template <class Test>
+bool every_face(const mesh::TriMesh& m, const Test& test) {
+  for (int f = 0; f < m.num_faces(); ++f)
+    if (!test(f)) return false;
+  return true;
+}
+
 }  // namespace
 
 AreaRefinement refine_disk_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
                                  const std::vector<char>& fixed, const AreaRefineOptions& opt) {
   check_targets(m, target, X);
   if (!opt.enabled) return {};
-  auto total = [&](const mesh::Vertices& Y) {
-    double sum = 0;
-    for (int f = 0; f < m.num_faces(); ++f) {
-      const Eigen::Matrix2d M = PlaneGeometry::edges(Y, detail::BarrierFace{{m.F(f, 0), m.F(f, 1), m.F(f, 2)}, {}, 0});
-      const double s = 0.5 * M.determinant();
-      if (!(s > 0)) return -1.0;  // a fold: the barrier needs a valid start
-      sum += s;
-    }
-    return sum;
-  };
-  if (!(total(X) > 0)) return {};
+  // A fold: the barrier needs a valid start.
+  if (!every_face(m, [&](int f) { return PlaneGeometry::chord_area(X, m.F, f) > 0; })) return {};
   // Unknowns per vertex: 2 inside, 1 on the boundary (along the circle) or 0 (held).
   std::vector<char> free(fixed.size());
   for (size_t v = 0; v < fixed.size(); ++v) free[v] = !fixed[v] ? 2 : opt.slide_boundary ? 1 : 0;
   PlaneGeometry plane;
-  return refine(m, target, X, free, opt, plane, total);
+  return refine(m, target, X, free, opt, plane);
 }
 
 AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
                                    const AreaRefineOptions& opt) {
   check_targets(m, target, X);
   if (!opt.enabled) return {};
-  auto total = [&](const mesh::Vertices& Y) {  // in the energy's measure det(a, b, c) / 2
-    double sum = 0;
-    for (int f = 0; f < m.num_faces(); ++f) {
-      const double s = 0.5 * Y.row(m.F(f, 0)).dot(Y.row(m.F(f, 1)).cross(Y.row(m.F(f, 2))));
-      if (!(s > 0)) return -1.0;
-      sum += s;
-    }
-    return sum;
-  };
-  if (!(total(X) > 0) || !quality::covers_once(quality::sphere_degree(m.F, X))) return {};
+  auto turns_out = [&](int f) { return X.row(m.F(f, 0)).dot(X.row(m.F(f, 1)).cross(X.row(m.F(f, 2)))) > 0; };
+  if (!every_face(m, turns_out) || !quality::covers_once(quality::sphere_degree(m.F, X))) return {};
   const std::vector<char> free(m.num_vertices(), 2);
   SphereGeometry sphere;
   sphere.F = &m.F;
@@ -588,7 +576,7 @@ AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd
   // measure's, and the steps only cost time (over the 88 meshes of the sweep, 67 s of
   // refinement against 84 s, and diplodocus meets the tolerances; bench/RESULTS.md).
   const mesh::Vertices start = X;
-  AreaRefinement out = refine(m, target, X, free, opt, sphere, total, 0.0);
+  AreaRefinement out = refine(m, target, X, free, opt, sphere, 0.0);
   auto add = [&out](const AreaRefinement& r) {
     out.iterations += r.iterations;
     out.stages += r.stages;
@@ -598,7 +586,7 @@ AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd
   for (int from_start = 0; from_start < 2 && !out.converged; ++from_start) {
     if (from_start && out.kept_start) break;  // the first chord run already started there
     mesh::Vertices Y = from_start ? start : X;
-    const AreaRefinement chord = refine(m, target, Y, free, opt, sphere, total, 0.01);
+    const AreaRefinement chord = refine(m, target, Y, free, opt, sphere, 0.01);
     add(chord);
     if (!chord.kept_start && chord.after.mean < out.after.mean) {
       X = std::move(Y);
