@@ -61,7 +61,8 @@ struct AreaRefinement {
 Eigen::VectorXd abs_log_area_ratios(const mesh::Faces& F, const mesh::Vertices& X, const Eigen::VectorXd& target);
 
 /// Refines a planar map X (#V by 3, z = 0, no flipped face) of m toward the face areas
-/// `target` (any scale: they are scaled to the map's total); the rows with fixed[v] != 0 (the
+/// `target` (any scale: only their ratios count, their common scale is refitted to the map
+/// before every step); the rows with fixed[v] != 0 (the
 /// disk's boundary, on the unit circle) slide along the circle, or are held without
 /// options.slide_boundary. X keeps no flipped face, so the boundary keeps its cyclic order.
 AreaRefinement refine_disk_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,

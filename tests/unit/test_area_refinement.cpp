@@ -1,8 +1,9 @@
 // The face-by-face area refinement (omt/area_refinement.hpp) on closed forms: a start whose
 // targets a similarity meets exactly comes back to it (the energy's unique minimum); the
 // area-preserving maps of a square and an ellipsoid reach their stated tolerances with no
-// flipped face, the disk's boundary held and the sphere covered once; region weights move
-// the faces' areas to their weighted targets; phi_t, --no-refine and a folded start are left
+// flipped face, the disk's boundary on the circle in its order and the sphere covered once;
+// an open cube's map, whose boundary slides, reaches equal areas; region weights move the
+// faces' areas to their weighted targets; phi_t, --no-refine and a folded start are left
 // alone.
 #include <gtest/gtest.h>
 
