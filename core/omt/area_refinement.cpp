@@ -453,9 +453,9 @@ void check_targets(const mesh::TriMesh& m, const Eigen::VectorXd& target, const 
 
 // The staged minimization of area_refinement.hpp: theta = 0.999, then 0.9999, each stage
 // ended when the Newton decrement falls below 1e-7 of the energy or after 50 steps, the
-// whole when the tolerances hold or the budget is spent. free[v]: vertex v's number of unknowns (Dof::count). Given min_progress, a stage also ends
-// at a step that cuts the mean |log area ratio| by less than that fraction (0: at a step
-// that raises it).
+// whole when the tolerances hold or the budget is spent. free[v]: vertex v's number of
+// unknowns (Dof::count). Given min_progress, a stage also ends at a step that cuts the mean
+// |log area ratio| by less than that fraction (0: at a step that raises it).
 template <class Geometry>
 AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
                       const std::vector<char>& free, const AreaRefineOptions& opt, Geometry& geometry,
@@ -475,16 +475,16 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
   // chord measure the chord areas themselves), their total the map's.
   // The map's total is not fixed: on the sphere a coarse mesh's inscribed polyhedron can hold
   // far less volume than the start's, on the disk the boundary vertices slide along the circle
-  // and so change the inscribed polygon's area (an open cube of 8 faces: 0.043 with the scale
-  // set once at the start, 0.0096 refitted). So the targets' common scale sigma is refitted
-  // before every step to the one
-  // that minimizes the area term sum_f t_f (r_f / sigma + sigma / r_f) at the current map
-  // (r_f = D_f sigma, here the chord area over the target): sigma^2 = sum t_f r_f /
-  // sum t_f / r_f. The steps and the refits then descend one function, which is invariant
-  // under scaling every r_f; with a scale fixed at the start, the energy's minimum sat where
-  // the map's total matched that scale, not where its areas were equal (a cube's map stayed
-  // at mean |log area ratio| 0.068 though the inscribed cube's is 0). (Refitting to the
-  // plain ratio of totals instead was no descent: it drifted toward smaller volumes.)
+  // and so change the inscribed polygon's area (cube-ouvert, an open cube of ten triangles:
+  // 0.043 with the scale set once at the start, 0.0096 refitted). So the targets' common
+  // scale sigma is refitted before every step to the one that minimizes the area term
+  // sum_f t_f (r_f / sigma + sigma / r_f) at the current map (r_f = D_f sigma, here the chord
+  // area over the target): sigma^2 = sum t_f r_f / sum t_f / r_f. The steps and the refits
+  // then descend one function, which is invariant under scaling every r_f; with a scale fixed
+  // at the start, the energy's minimum sat where the map's total matched that scale, not where
+  // its areas were equal (a cube's map on the sphere stayed at mean |log area ratio| 0.068
+  // though the inscribed cube's is 0). (Refitting to the plain ratio of totals instead was no
+  // descent: it drifted toward smaller volumes.)
   std::vector<detail::BarrierFace> faces(m.num_faces());
   auto set_references = [&] {
     Eigen::VectorXd t(m.num_faces());
