@@ -11,16 +11,16 @@
 // result is judged by (area_refinement.cpp says why both). The first term is least at
 // D_f = 1, the face's own area; the second, the MIPS energy, is scale-free and keeps the
 // shapes, which makes the minimizer unique and keeps the triangles from turning into slivers;
-// theta = 0.999, then 0.9999, lets the area term win. The minimization is a projected Newton method (each face's Hessian with its
-// negative eigenvalues clamped, CHOLMOD for the system), the step cut before any face
-// degenerates (the plane: in closed form) and by Armijo's rule; the energy is infinite on a
-// degenerate face, so from a map with no flipped face no face flips, and on the sphere a step
-// is also kept only if the map still covers the sphere once. The disk's boundary vertices
-// slide along the circle (a face with three corners there could not change its area if they
-// were held). Stops when the stated tolerances hold (mean and 95th percentile of |log area
-// ratio|) or after the step budget, saying which; on the sphere a volume stage also ends at a
-// step that raises the mean |log area ratio|, a chord stage at one that gains less than 1 %.
-// A result worse than its start is not kept.
+// theta = 0.999, then 0.9999, lets the area term win. The minimization is a projected Newton
+// method (each face's Hessian with its negative eigenvalues clamped, CHOLMOD for the system),
+// the step cut before any face degenerates (the plane: in closed form) and by Armijo's rule;
+// the energy is infinite on a degenerate face, so from a map with no flipped face no face
+// flips, and on the sphere a step is also kept only if the map still covers the sphere once.
+// The disk's boundary vertices slide along the circle (a face with three corners there could
+// not change its area if they were held). Stops when the stated tolerances hold (mean and
+// 95th percentile of |log area ratio|) or after the step budget, saying which; on the sphere
+// a volume stage also ends at a step that raises the mean |log area ratio|, a chord stage at
+// one that gains less than 1 %. A result worse than its start is not kept.
 #pragma once
 
 #include <Eigen/Core>
@@ -62,9 +62,8 @@ Eigen::VectorXd abs_log_area_ratios(const mesh::Faces& F, const mesh::Vertices& 
 
 /// Refines a planar map X (#V by 3, z = 0, no flipped face) of m toward the face areas
 /// `target` (any scale: only their ratios count, their common scale is refitted to the map
-/// before every step); the rows with fixed[v] != 0 (the
-/// disk's boundary, on the unit circle) slide along the circle, or are held without
-/// options.slide_boundary. X keeps no flipped face, so the boundary keeps its cyclic order.
+/// before every step); the rows with fixed[v] != 0 (the disk's boundary, on the unit circle)
+/// slide along the circle, or are held without options.slide_boundary. X keeps no flipped face, so the boundary keeps its cyclic order.
 AreaRefinement refine_disk_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
                                  const std::vector<char>& fixed, const AreaRefineOptions& options);
 

@@ -51,6 +51,22 @@ PushedIcosphere refine_pushed_icosphere(int level, double push) {
   return p;
 }
 
+// A cube's eight corners (+-1 each, corner v at the signs of its bits) and its twelve
+// triangles, turned outward; with open_top the two of the face z = 1 are left out.
+mesh::TriMesh make_cube(bool open_top) {
+  mesh::TriMesh m;
+  m.V.resize(8, 3);
+  for (int v = 0; v < 8; ++v) m.V.row(v) << (v & 1 ? 1 : -1), (v & 2 ? 1 : -1), (v & 4 ? 1 : -1);
+  m.F.resize(open_top ? 10 : 12, 3);
+  m.F.topRows(10) << 0, 2, 1, 1, 2, 3,  // z = -1
+      0, 1, 4, 1, 5, 4,                 // y = -1
+      2, 6, 3, 3, 6, 7,                 // y = 1
+      0, 4, 2, 2, 4, 6,                 // x = -1
+      1, 3, 5, 3, 7, 5;                 // x = 1
+  if (!open_top) m.F.bottomRows(2) << 4, 5, 6, 5, 7, 6;  // z = 1
+  return m;
+}
+
 }  // namespace
 
 TEST(AreaRefinement, AFlatDiskPulledRadiallyComesBackToItself) {
@@ -122,12 +138,8 @@ TEST(AreaRefinement, ACubeSlidTowardAPoleComesBackToEqualAreas) {
   // elsewhere (its planes' distances change with the shape: its result came out worse than the
   // start, which was kept, mean 0.24 after 100 steps); the chord stage after it
   // (area_refinement.cpp) reaches equal areas.
-  mesh::TriMesh m;
-  m.V.resize(8, 3);
-  for (int v = 0; v < 8; ++v)
-    m.V.row(v) = Eigen::RowVector3d(v & 1 ? 1 : -1, v & 2 ? 1 : -1, v & 4 ? 1 : -1) / std::sqrt(3.0);
-  m.F.resize(12, 3);
-  m.F << 0, 2, 1, 1, 2, 3, 4, 5, 6, 5, 7, 6, 0, 1, 4, 1, 5, 4, 2, 6, 3, 3, 6, 7, 0, 4, 2, 2, 4, 6, 1, 3, 5, 3, 7, 5;
+  mesh::TriMesh m = make_cube(false);
+  m.V /= std::sqrt(3.0);
   const quality::MapQuality cube = quality::measure(m, m.V, quality::Target::kSphere);
   ASSERT_EQ(cube.flipped_faces, 0);  // the faces as written turn outward
   mesh::Vertices X = m.V;
@@ -189,16 +201,7 @@ TEST(AreaRefinement, AnOpenCubesDiskMapReachesEqualAreasWithItsBoundarySliding) 
   // the targets' scale set once at the start the energy's minimum sat where the total
   // matched that scale, not at equal areas (mean |log area ratio| 0.067, p95 0.20); refitted
   // before every step (area_refinement.cpp) it meets the default tolerances.
-  mesh::TriMesh m;
-  m.V.resize(8, 3);
-  for (int v = 0; v < 8; ++v) m.V.row(v) << (v & 1 ? 1 : -1), (v & 2 ? 1 : -1), (v & 4 ? 1 : -1);
-  // The open face is z = 1 (corners 4..7); each quad split along a diagonal, turned outward.
-  m.F.resize(10, 3);
-  m.F << 0, 2, 1, 1, 2, 3,  // z = -1
-      0, 1, 4, 1, 5, 4,     // y = -1
-      2, 6, 3, 3, 6, 7,     // y = 1
-      0, 4, 2, 2, 4, 6,     // x = -1
-      1, 3, 5, 3, 7, 5;     // x = 1
+  const mesh::TriMesh m = make_cube(true);  // the open face is z = 1 (corners 4..7)
   ASSERT_EQ(mesh::boundary_loops(m).size(), 1u);
   const omt::AreaPreservingMap ap = omt::area_preserving_disk(m);
   const omt::AreaRefinement& r = ap.refinement;
