@@ -156,6 +156,26 @@ TEST(AreaRefinement, ACubeSlidTowardAPoleComesBackToEqualAreas) {
   EXPECT_TRUE(quality::covers_once(q.degree));
 }
 
+TEST(AreaRefinement, ABeamsMapSlidTowardAPoleComesBackToItsInscribedBox) {
+  // A beam, the box 2 x 2 x 18 (data/meshes/beam.off's proportions), its corners on the unit
+  // sphere slid toward the north pole as in the cube's test above. Every box has a
+  // circumsphere about its centre, so the inscribed box meets the targets exactly, but its four
+  // long sides' planes lie only 0.11 from the centre. Without the chord measure's plane barrier
+  // (SphereGeometry) the steps pressed a face's plane against the centre, the line search cut
+  // them to nothing and the map stalled at mean |log area ratio| 0.039 after 15 steps (beam.off
+  // itself at 0.13); with it, the default tolerances are met.
+  mesh::TriMesh m = make_cube(false);
+  m.V.col(2) *= 9;
+  mesh::Vertices X = m.V;
+  for (int v = 0; v < 8; ++v) X.row(v) = (X.row(v).normalized() + Eigen::RowVector3d(0.1, 0, 0.3)).normalized();
+  const omt::AreaRefinement r = omt::refine_sphere_areas(m, mesh::face_areas(m), X, omt::AreaRefineOptions{});
+  EXPECT_GT(r.before.mean, 0.15);
+  EXPECT_TRUE(r.converged) << r.after.mean << " " << r.after.p95 << " after " << r.iterations;
+  const quality::MapQuality q = quality::measure(m, X, quality::Target::kSphere);
+  EXPECT_EQ(q.flipped_faces, 0);
+  EXPECT_TRUE(quality::covers_once(q.degree));
+}
+
 TEST(AreaRefinement, TheSquaresAreaPreservingDiskMapPreservesAreaFaceByFace) {
   // A flat square's disk map: the seed's centroid map leaves the faces near the corners off
   // their areas (mean |log ratio| ~0.03). The refinement brings the faces within the issue's
