@@ -8,7 +8,9 @@
 // D_f = det J_f its area ratio. On the sphere D_f is measured first by volume,
 // det(a, b, c) / 2 A_f (a barrier against turning, from any start), then, where the
 // tolerances are not met, by the chord area |(b - a) x (c - a)| / 2 A_f, the measure the
-// result is judged by (area_refinement.cpp says why both). The first term is least at
+// result is judged by, with a small barrier 1e-3 A_f / h_f on each face's plane distance h_f
+// from the centre, the one thing that keeps a chord face from turning over (area_refinement.cpp
+// says why both measures, and why the barrier). The first term is least at
 // D_f = 1, the face's own area; the second, the MIPS energy, is scale-free and keeps the
 // shapes, which makes the minimizer unique and keeps the triangles from turning into slivers;
 // theta = 0.999, then 0.9999, lets the area term win. The minimization is a projected Newton
@@ -41,8 +43,7 @@ struct AreaRefineOptions {
   /// The disk's boundary vertices slide along the circle (false: held where they are).
   bool slide_boundary = true;
   /// Newton steps over all stages of one run. On the sphere the volume run has this budget, and
-  /// so has each chord run after it (from its result and, if still short, from the start);
-  /// the chord runs seldom use more than a few steps.
+  /// so has each chord run after it (from its result and, if still short, from the start).
   int max_iterations = 100;
 };
 
