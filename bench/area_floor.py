@@ -170,7 +170,11 @@ class Problem:
         r = minimize(lambda z: z[nx:].sum() / F, z0, method="SLSQP", constraints=cons,
                      options={"maxiter": 500, "ftol": 1e-12})
         P = self.corners(r.x[:nx])
-        return P if self.orientation(P).min() > 0 else None
+        if self.orientation(P).min() <= 0:
+            return None
+        if self.cap is not None and np.abs(self.deviation(P)).max() > self.cap * (1 + 1e-6):
+            return None  # SLSQP stopped outside the cap: no map found under it from this start
+        return P
 
 
 def search(tool, mesh, domain, starts, rng, cap):
@@ -222,9 +226,9 @@ def main():
         domain = info["class"]
         n, nf, refined, best = search(a.tool, mesh, domain, a.starts, rng, a.cap)
         name = os.path.splitext(os.path.basename(mesh))[0]
-        low = "none valid" if best is None else f"{best[0]:.4f} ({best[1]:.3f})"
+        low = "none" if best is None else f"{best[0]:.4f} ({best[1]:.3f})"
         if best is None:
-            reach = "no valid map found"
+            reach = "no map found" + (" within the cap" if a.cap is not None else "")
         elif best[0] <= 0.02 and best[1] <= 0.1:
             reach = "met"
         elif best[0] <= 0.02:
