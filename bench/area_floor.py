@@ -88,11 +88,9 @@ def mapped(tool, mesh, domain, refine):
 
 
 def tri_areas(P, F):
+    """The areas of the triangles F with 3-D corners P (the surface's, or chords on the sphere)."""
     a, b, c = P[F[:, 0]], P[F[:, 1]], P[F[:, 2]]
-    cr = np.cross(b - a, c - a)
-    if cr.ndim == 1:
-        return 0.5 * np.abs(cr)
-    return 0.5 * np.linalg.norm(cr, axis=1)
+    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
 
 
 def boundary_loop(F):

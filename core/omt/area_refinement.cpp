@@ -191,12 +191,7 @@ struct SphereGeometry {
   }
   // The Hessian in the nine coordinates of (a, b, c), then in the corners' tangent
   // coordinates (B^T H B, less (x . g_x) I for the sphere's curvature), projected there.
-  // volume: det(a, b, c) is trilinear, d det / da = b x c and so on, and its Hessian's blocks
-  // are (a, b) = -[c]x, (a, c) = [b]x, (b, c) = -[a]x and their transposes.
-  // chord: with n = a x b + b x c + c x a (bilinear, dn/da = [c - b]x, dn/db = [a - c]x,
-  // dn/dc = [b - a]x, N = [dn/da dn/db dn/dc]) and u = n / |n|: d|n| = N^T u and
-  // d^2|n| = N^T (I - u u^T) N / |n| + Q, Q the constant Hessian of u . n, whose blocks are
-  // (a, b) = (b, c) = (c, a) = -[u]x and their transposes.
+  // D's derivatives are det's (volume) or |n|'s (chord), below.
   Local derivatives(const mesh::Vertices& X, const detail::BarrierFace& f, double theta) const {
     const Eigen::Vector3d a = at(X, f.v[0]), b = at(X, f.v[1]), c = at(X, f.v[2]);
     const double k = 1 / (2 * f.weight);
@@ -240,7 +235,9 @@ struct SphereGeometry {
     H.block<3, 3>(3 * p, 3 * q) += S;
     H.block<3, 3>(3 * q, 3 * p) += S.transpose();
   }
-  // det(a, b, c) = a . n, n = (b - a) x (c - a).
+  // det(a, b, c) = a . n, n = (b - a) x (c - a). It is trilinear: d det / da = b x c and so on,
+  // and its Hessian's blocks are (a, b) = -[c]x, (a, c) = [b]x, (b, c) = -[a]x and their
+  // transposes.
   static Scalar9 determinant(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
                              const Eigen::Vector3d& n) {
     Scalar9 d{a.dot(n), {}, Eigen::Matrix<double, 9, 9>::Zero()};
@@ -250,7 +247,10 @@ struct SphereGeometry {
     add_pair(d.H, 1, 2, -skew(a));
     return d;
   }
-  // |n|, twice the chord area.
+  // |n|, twice the chord area. With n = a x b + b x c + c x a (bilinear, dn/da = [c - b]x,
+  // dn/db = [a - c]x, dn/dc = [b - a]x, N = [dn/da dn/db dn/dc]) and u = n / |n|: d|n| = N^T u
+  // and d^2|n| = N^T (I - u u^T) N / |n| + Q, Q the constant Hessian of u . n, whose blocks are
+  // (a, b) = (b, c) = (c, a) = -[u]x and their transposes.
   static Scalar9 normal_length(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
                                const Eigen::Vector3d& n) {
     const double len = n.norm();

@@ -64,7 +64,8 @@ Eigen::VectorXd abs_log_area_ratios(const mesh::Faces& F, const mesh::Vertices& 
 /// Refines a planar map X (#V by 3, z = 0, no flipped face) of m toward the face areas
 /// `target` (any scale: only their ratios count, their common scale is refitted to the map
 /// before every step); the rows with fixed[v] != 0 (the disk's boundary, on the unit circle)
-/// slide along the circle, or are held without options.slide_boundary. X keeps no flipped face, so the boundary keeps its cyclic order.
+/// slide along the circle, or are held without options.slide_boundary. X keeps no flipped
+/// face, so the boundary keeps its cyclic order.
 AreaRefinement refine_disk_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
                                  const std::vector<char>& fixed, const AreaRefineOptions& options);
 
