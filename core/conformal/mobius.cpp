@@ -41,6 +41,11 @@ int center_disk(mesh::UV& uv, const mesh::Faces& F, const Eigen::VectorXd& area,
   return max_iterations;
 }
 
+Eigen::Vector3d sphere_automorphism(const Eigen::Vector3d& x, const Eigen::Vector3d& a) {
+  const Eigen::Vector3d d = x - a;
+  return ((1 - a.squaredNorm()) * d / d.squaredNorm() - a).normalized();
+}
+
 int center_sphere(mesh::Vertices& X, const mesh::Faces& F, const Eigen::VectorXd& area, double tol,
                   int max_iterations, Eigen::VectorXd* log_scale) {
   // Vertex masses (a third of the adjacent faces' areas) at the vertices: unlike chord
@@ -55,13 +60,11 @@ int center_sphere(mesh::Vertices& X, const mesh::Faces& F, const Eigen::VectorXd
     if (c.norm() <= tol) return it;
     double r = c.norm();
     Eigen::Vector3d a = r < 0.5 ? c : Eigen::Vector3d(c * (0.5 / r));
-    double a2 = a.squaredNorm();
+    const double a2 = a.squaredNorm();
     for (int i = 0; i < X.rows(); ++i) {
-      Eigen::Vector3d x = X.row(i).transpose();
-      Eigen::Vector3d d = x - a;
-      Eigen::Vector3d y = (1 - a2) * d / d.squaredNorm() - a;
-      if (log_scale) (*log_scale)[i] += std::log((1 - a2) / d.squaredNorm());
-      X.row(i) = y.normalized().transpose();
+      const Eigen::Vector3d x = X.row(i).transpose();
+      if (log_scale) (*log_scale)[i] += std::log((1 - a2) / (x - a).squaredNorm());
+      X.row(i) = sphere_automorphism(x, a).transpose();
     }
   }
   return max_iterations;

@@ -30,6 +30,10 @@ int center_disk(mesh::UV& uv, const mesh::Faces& F, const Eigen::VectorXd& face_
 /// of its faces' areas) at the vertex, and the ball automorphism
 /// x -> (1 - |a|^2)(x - a) / |x - a|^2 - a, which maps the sphere to itself and a to 0;
 /// with `log_scale`, its stretch on the sphere, log((1 - |a|^2) / |x - a|^2), is added.
+/// That ball automorphism on one point x of the unit sphere (|a| < 1), renormalized onto the
+/// sphere against round-off. It is orientation preserving on the sphere.
+Eigen::Vector3d sphere_automorphism(const Eigen::Vector3d& x, const Eigen::Vector3d& a);
+
 int center_sphere(mesh::Vertices& X, const mesh::Faces& F, const Eigen::VectorXd& face_area,
                   double tol = 1e-12, int max_iterations = 200,
                   Eigen::VectorXd* log_scale = nullptr);

@@ -158,9 +158,13 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
 
   const auto t1 = std::chrono::steady_clock::now();
   const auto pairs = domain_landmarks(r, a, b, source.input_vertices, target.input_vertices);
+  // From the landmarks' least-squares turn; from their least-squares Moebius map where the
+  // turn's steps fold (domain_match.hpp). A Moebius start first was no more accurate on the
+  // conformal route (bench/RESULTS.md, session 31).
+  const registration::MatchStart start = registration::MatchStart::kRotation;
   const registration::DomainMatch g =
-      sphere ? registration::match_spheres(a.positions, a.surface.F, pairs)
-             : registration::match_disks(a.positions, a.surface.F, pairs);
+      sphere ? registration::match_spheres(a.positions, a.surface.F, pairs, start)
+             : registration::match_disks(a.positions, a.surface.F, pairs, start);
   const int folds = domain_folds(a.surface, g.mapped, sphere);
   const auto at = registration::locate(b.surface.F, b.positions, g.mapped, sphere);
   const double t_match = seconds_since(t1);
@@ -198,7 +202,13 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
   j["landmarks"] = r.source_landmarks.size();
   j["source"] = a.report;
   j["target"] = b.report;
-  j["match"] = {{"rotation_rad", g.rotation_angle}, {"steps", g.steps}, {"max_landmark_error", g.max_landmark_error}};
+  j["match"] = {{"start", g.start == registration::MatchStart::kMobius ? "mobius" : "rotation"},
+                {"fell_back", g.start != start},
+                {"rotation_rad", g.rotation_angle},
+                {"mobius_a", {g.mobius_a.x(), g.mobius_a.y(), g.mobius_a.z()}},
+                {"start_rms", g.start_rms},
+                {"steps", g.steps},
+                {"max_landmark_error", g.max_landmark_error}};
   j["domain_folded_faces"] = folds;
   j["morph_flipped_faces"] = morph_flips;
   j["seconds"] = {{"maps", t_maps}, {"match", t_match}};

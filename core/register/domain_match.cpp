@@ -12,6 +12,7 @@
 #include <functional>
 
 #include "common/error.hpp"
+#include "conformal/mobius.hpp"
 #include "mesh/topology.hpp"
 
 namespace brenier::registration {
@@ -49,6 +50,11 @@ struct CircleMap {
     }
     return x;
   }
+};
+
+// Landmarks the continuation cannot carry unfolded from one start (the message names them).
+struct Refused {
+  std::string message;
 };
 
 // The continuation of harmonic maps on a planar mesh: `moving` vertices follow `path`
@@ -115,17 +121,17 @@ struct Continuation {
 
   [[noreturn]] void refuse(Eigen::Index bad_face) const {
     if (landmark_vertex.size() < 2)
-      invalid("landmark " + (landmark_name.empty() ? std::string("?") : landmark_name[0]) +
-              " cannot be moved onto its target without folding the mesh");
+      throw Refused{"landmark " + (landmark_name.empty() ? std::string("?") : landmark_name[0]) +
+                    " cannot be moved onto its target without folding the mesh"};
     const V2 y = bad_face >= 0 ? X[static_cast<size_t>(F(bad_face, 0))] : V2::Zero();
     std::vector<size_t> order(landmark_vertex.size());
     for (size_t i = 0; i < order.size(); ++i) order[i] = i;
     std::sort(order.begin(), order.end(), [&](size_t a, size_t b) {
       return (X[static_cast<size_t>(landmark_vertex[a])] - y).norm() < (X[static_cast<size_t>(landmark_vertex[b])] - y).norm();
     });
-    invalid("landmarks " + landmark_name[order[0]] + " and " + landmark_name[order[1]] +
-            " cannot be matched without folding the mesh between them (they pass each other or move too far for "
-            "the mesh's resolution); drop or move one of them");
+    throw Refused{"landmarks " + landmark_name[order[0]] + " and " + landmark_name[order[1]] +
+                  " cannot be matched without folding the mesh between them (they pass each other or move too far "
+                  "for the mesh's resolution); drop or move one of them"};
   }
 
   // The landmarks' current places.
@@ -222,6 +228,79 @@ struct Continuation {
   }
 };
 
+// Levenberg-Marquardt on a handful of parameters, the Jacobian by central differences. A trial
+// point outside `feasible` counts as a failed step. Returns the best point found.
+Eigen::VectorXd levenberg_marquardt(const std::function<Eigen::VectorXd(const Eigen::VectorXd&)>& residual,
+                                    Eigen::VectorXd x, const std::function<bool(const Eigen::VectorXd&)>& feasible) {
+  Eigen::VectorXd r = residual(x);
+  double cost = r.squaredNorm(), lambda = 1e-3;
+  for (int it = 0; it < 200 && cost > 0; ++it) {
+    Eigen::MatrixXd J(r.size(), x.size());
+    for (Eigen::Index k = 0; k < x.size(); ++k) {
+      Eigen::VectorXd xp = x, xm = x;
+      xp[k] += 1e-7;
+      xm[k] -= 1e-7;
+      J.col(k) = (residual(xp) - residual(xm)) / 2e-7;
+    }
+    const Eigen::MatrixXd A = J.transpose() * J;
+    const Eigen::VectorXd g = J.transpose() * r;
+    bool improved = false;
+    for (; lambda < 1e10 && !improved; lambda *= 4) {
+      Eigen::MatrixXd M = A;
+      M.diagonal() += lambda * (A.diagonal().array() + 1e-12).matrix();
+      const Eigen::VectorXd y = x - M.ldlt().solve(g);
+      if (!y.allFinite() || !feasible(y)) continue;
+      const Eigen::VectorXd ry = residual(y);
+      if (ry.squaredNorm() < cost) {
+        const double gain = cost - ry.squaredNorm();
+        x = y, r = ry, cost = ry.squaredNorm(), improved = true;
+        if (gain <= 1e-14 * (1 + cost)) return x;
+      }
+    }
+    if (!improved) break;
+    lambda = std::max(lambda / 16, 1e-12);
+  }
+  return x;
+}
+
+// The sign of each face's orientation as conformal::face_folded reads it (from the edge
+// vectors, which resolve the tiny faces of a conformal sphere map where det(a, b, c) is
+// round-off): in the plane (z = 0) the signed area, on the sphere the normal's component
+// along the centroid.
+std::vector<double> orientations(const mesh::Vertices& X, const mesh::Faces& F, bool sphere) {
+  std::vector<double> s(static_cast<size_t>(F.rows()));
+  for (Eigen::Index f = 0; f < F.rows(); ++f) {
+    const Eigen::Vector3d a = X.row(F(f, 0)), b = X.row(F(f, 1)), c = X.row(F(f, 2));
+    const Eigen::Vector3d n = (b - a).cross(c - a);
+    s[static_cast<size_t>(f)] = sphere ? n.dot(a + b + c) : n.z();
+  }
+  return s;
+}
+
+// Applies `map` (a Moebius start whose automorphism point is scaled by s) to every point,
+// halving s until no face turns over (a Moebius map is a bijection of the domain, but a
+// straight triangle's image can still turn over where the map bends hard). Returns s, 0 when
+// only the plain turn (s = 0) leaves every face as it was.
+double unfolded_start(const mesh::Vertices& points, const mesh::Faces& F, bool sphere,
+                      const std::function<mesh::Vertices(double s)>& map, mesh::Vertices& out) {
+  const std::vector<double> before = orientations(points, F, sphere);
+  for (double s = 1; s > 1e-3; s /= 2) {
+    out = map(s);
+    const std::vector<double> after = orientations(out, F, sphere);
+    bool folded = false;
+    for (size_t f = 0; f < before.size() && !folded; ++f) folded = before[f] > 0 && !(after[f] > 0);
+    if (!folded) return s;
+  }
+  out = map(0);
+  return 0;
+}
+
+double start_rms(const mesh::Vertices& X, const std::vector<LandmarkPair>& l) {
+  double sum = 0;
+  for (const auto& x : l) sum += (X.row(x.vertex).transpose() - x.q).squaredNorm();
+  return l.empty() ? 0.0 : std::sqrt(sum / static_cast<double>(l.size()));
+}
+
 void check_distinct(const std::vector<LandmarkPair>& l, double eps) {
   for (size_t i = 0; i < l.size(); ++i)
     for (size_t j = i + 1; j < l.size(); ++j) {
@@ -244,25 +323,63 @@ void check_vertices(const std::vector<LandmarkPair>& l, Eigen::Index n) {
     if (x.vertex < 0 || x.vertex >= n) invalid("landmark " + x.name + " is not a vertex of the source's domain mesh");
 }
 
-}  // namespace
-
-DomainMatch match_disks(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks) {
-  check_vertices(landmarks, points.rows());
-  check_distinct(landmarks, 1e-12);
+DomainMatch disks_from(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks,
+                       MatchStart start) {
   const std::vector<char> boundary = boundary_of(points, faces);
   DomainMatch out;
-  // The least-squares turn: the angle of sum conj(p_k) q_k.
-  std::complex<double> sum = 0;
-  for (const auto& l : landmarks)
-    sum += std::conj(std::complex<double>(points(l.vertex, 0), points(l.vertex, 1))) * std::complex<double>(l.q.x(), l.q.y());
-  const double theta = std::abs(sum) > 1e-12 ? std::arg(sum) : 0.0;
-  out.rotation_angle = theta;
-  const Eigen::Rotation2Dd turn(theta);
+  using C = std::complex<double>;
+  std::vector<C> p, q;
+  for (const auto& l : landmarks) {
+    p.emplace_back(points(l.vertex, 0), points(l.vertex, 1));
+    q.emplace_back(l.q.x(), l.q.y());
+  }
+  // The landmarks after z -> T_a(z) = (z - a) / (1 - conj(a) z), and the least-squares turn of
+  // those onto the q's: the angle of sum conj(T_a(p_k)) q_k.
+  auto moved = [&](C a) {
+    std::vector<C> w;
+    for (const C& z : p) w.push_back(conformal::disk_automorphism(z, a));
+    return w;
+  };
+  auto turn_of = [&](const std::vector<C>& w) {
+    C sum = 0;
+    for (size_t k = 0; k < w.size(); ++k) sum += std::conj(w[k]) * q[k];
+    return std::abs(sum) > 1e-12 ? std::arg(sum) : 0.0;
+  };
+  C a = 0;
+  if (start == MatchStart::kMobius && landmarks.size() >= 3) {
+    // a by Levenberg-Marquardt, the turn projected out (the best one for each a).
+    auto residual = [&](const Eigen::VectorXd& x) {
+      const std::vector<C> w = moved(C(x[0], x[1]));
+      const C rot = std::polar(1.0, turn_of(w));
+      Eigen::VectorXd r(2 * static_cast<Eigen::Index>(w.size()));
+      for (size_t k = 0; k < w.size(); ++k) {
+        const C e = rot * w[k] - q[k];
+        r[2 * static_cast<Eigen::Index>(k)] = e.real(), r[2 * static_cast<Eigen::Index>(k) + 1] = e.imag();
+      }
+      return r;
+    };
+    const Eigen::VectorXd x = levenberg_marquardt(residual, Eigen::Vector2d::Zero(), [](const Eigen::VectorXd& y) { return y.norm() <= 0.9; });
+    a = C(x[0], x[1]);
+  }
+  mesh::Vertices started;
+  const double scale = unfolded_start(points, faces, false, [&](double s) {
+    mesh::UV uv = points.leftCols(2);
+    conformal::apply_disk_mobius(uv, s * a, turn_of(moved(s * a)));
+    mesh::Vertices y = mesh::Vertices::Zero(points.rows(), 3);
+    y.leftCols(2) = uv;
+    for (Eigen::Index i = 0; i < y.rows(); ++i)
+      if (boundary[static_cast<size_t>(i)]) y.row(i).normalize();  // exactly on the circle
+    return y;
+  }, started);
+  out.rotation_angle = turn_of(moved(scale * a));
+  out.start = start;
+  out.mobius_a = Eigen::Vector3d((scale * a).real(), (scale * a).imag(), 0);
+  out.start_rms = start_rms(started, landmarks);
 
   Continuation c{faces, {}, {}, {}, {}, {}, {}, {}, {}, 1.0, false};
   c.X.resize(static_cast<size_t>(points.rows()));
   c.skip_vertex.assign(static_cast<size_t>(points.rows()), 0);
-  for (Eigen::Index i = 0; i < points.rows(); ++i) c.X[static_cast<size_t>(i)] = turn * V2(points(i, 0), points(i, 1));
+  for (Eigen::Index i = 0; i < points.rows(); ++i) c.X[static_cast<size_t>(i)] = started.row(i).head<2>().transpose();
   c.fixed = boundary;
   c.skip_face.assign(static_cast<size_t>(faces.rows()), 0);
 
@@ -322,8 +439,6 @@ DomainMatch match_disks(const mesh::Vertices& points, const mesh::Faces& faces, 
   return out;
 }
 
-namespace {
-
 // The rotation taking the p's nearest the q's (Kabsch): for one landmark the shortest turn.
 Eigen::Matrix3d kabsch(const std::vector<Eigen::Vector3d>& p, const std::vector<Eigen::Vector3d>& q) {
   if (p.empty()) return Eigen::Matrix3d::Identity();
@@ -357,25 +472,48 @@ Eigen::Vector3d unstereo(const V2& y) {
   return Eigen::Vector3d(2 * y.x(), 2 * y.y(), s - 1) / (s + 1);
 }
 
-}  // namespace
-
-DomainMatch match_spheres(const mesh::Vertices& points, const mesh::Faces& faces,
-                          const std::vector<LandmarkPair>& landmarks) {
-  check_vertices(landmarks, points.rows());
-  check_distinct(landmarks, 1e-12);
+DomainMatch spheres_from(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks,
+                         MatchStart start) {
   DomainMatch out;
   std::vector<Eigen::Vector3d> p, q;
   for (const auto& l : landmarks) {
     p.push_back(points.row(l.vertex).transpose().normalized());
     q.push_back(l.q.normalized());
   }
-  const Eigen::Matrix3d R = kabsch(p, q);
+  // The landmarks after the ball's automorphism T_a, the rotation by Kabsch after it.
+  auto moved = [&](const Eigen::Vector3d& a) {
+    std::vector<Eigen::Vector3d> w;
+    for (const auto& x : p) w.push_back(conformal::sphere_automorphism(x, a));
+    return w;
+  };
+  Eigen::Vector3d a = Eigen::Vector3d::Zero();
+  if (start == MatchStart::kMobius && landmarks.size() >= 3) {
+    auto residual = [&](const Eigen::VectorXd& x) {
+      const std::vector<Eigen::Vector3d> w = moved(x);
+      const Eigen::Matrix3d R = kabsch(w, q);
+      Eigen::VectorXd r(3 * static_cast<Eigen::Index>(w.size()));
+      for (size_t k = 0; k < w.size(); ++k) r.segment<3>(3 * static_cast<Eigen::Index>(k)) = R * w[k] - q[k];
+      return r;
+    };
+    a = levenberg_marquardt(residual, Eigen::Vector3d::Zero(), [](const Eigen::VectorXd& y) { return y.norm() <= 0.9; });
+  }
+  const double scale = unfolded_start(points, faces, true, [&](double s) {
+    const Eigen::Matrix3d R = kabsch(moved(s * a), q);
+    mesh::Vertices y(points.rows(), 3);
+    for (Eigen::Index i = 0; i < y.rows(); ++i)
+      y.row(i) = (R * conformal::sphere_automorphism(points.row(i).transpose().normalized(), s * a)).transpose();
+    return y;
+  }, out.mapped);
+  out.start = start;
+  out.mobius_a = scale * a;
+  out.start_rms = start_rms(out.mapped, landmarks);
+  const std::vector<Eigen::Vector3d> p0 = moved(out.mobius_a);
+  const Eigen::Matrix3d R = kabsch(p0, q);
   out.rotation_angle = Eigen::AngleAxisd(R).angle();
-  out.mapped = points * R.transpose();
   if (landmarks.size() >= 2) {
     // The steps in the stereographic plane seen from a pole far from the landmarks.
     std::vector<Eigen::Vector3d> seen;
-    for (size_t k = 0; k < p.size(); ++k) seen.push_back(R * p[k]), seen.push_back(q[k]);
+    for (size_t k = 0; k < p.size(); ++k) seen.push_back(R * p0[k]), seen.push_back(q[k]);
     const Eigen::Vector3d pole = far_direction(seen);
     const Eigen::Matrix3d Q = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
     const size_t n = static_cast<size_t>(points.rows());
@@ -385,7 +523,7 @@ DomainMatch match_spheres(const mesh::Vertices& points, const mesh::Faces& faces
     std::vector<V2> targets;
     double max_r = 0;
     for (size_t k = 0; k < p.size(); ++k) {
-      const V2 from = stereo(Q * R * p[k]), to = stereo(Q * q[k]);
+      const V2 from = stereo(Q * R * p0[k]), to = stereo(Q * q[k]);
       max_r = std::max({max_r, from.norm(), to.norm()});
       targets.push_back(to);
       c.landmark_vertex.push_back(landmarks[k].vertex);
@@ -413,6 +551,39 @@ DomainMatch match_spheres(const mesh::Vertices& points, const mesh::Faces& faces
   for (size_t k = 0; k < landmarks.size(); ++k)
     out.max_landmark_error = std::max(out.max_landmark_error, (out.mapped.row(landmarks[k].vertex).transpose() - q[k]).norm());
   return out;
+}
+
+// The match from `start`; where the landmarks cannot be carried unfolded from it, from the
+// other start (a Moebius map fits the landmarks closer than a turn, so it can leave shorter
+// paths; a turn bends the mesh less where the domains differ by more than a Moebius map).
+// Refused from both: the first start's reason.
+DomainMatch with_fallback(MatchStart start, size_t landmarks, const std::function<DomainMatch(MatchStart)>& from) {
+  try {
+    return from(start);
+  } catch (const Refused& first) {
+    if (landmarks < 3) invalid(first.message);  // below three landmarks both starts are the turn
+    try {
+      return from(start == MatchStart::kMobius ? MatchStart::kRotation : MatchStart::kMobius);
+    } catch (const Refused&) {
+      invalid(first.message);
+    }
+  }
+}
+
+}  // namespace
+
+DomainMatch match_disks(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks,
+                        MatchStart start) {
+  check_vertices(landmarks, points.rows());
+  check_distinct(landmarks, 1e-12);
+  return with_fallback(start, landmarks.size(), [&](MatchStart s) { return disks_from(points, faces, landmarks, s); });
+}
+
+DomainMatch match_spheres(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks,
+                          MatchStart start) {
+  check_vertices(landmarks, points.rows());
+  check_distinct(landmarks, 1e-12);
+  return with_fallback(start, landmarks.size(), [&](MatchStart s) { return spheres_from(points, faces, landmarks, s); });
 }
 
 }  // namespace brenier::registration

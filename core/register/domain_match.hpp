@@ -7,18 +7,26 @@
 // alone that map is a rotation of the disk (harmonic, and a diffeomorphism by Rado's theorem,
 // Thm 4.1), and it is where we start: the least-squares turn of the landmarks. Interior hard
 // constraints, though, can make a harmonic map fold (Rado's hypotheses no longer hold), so the
-// landmarks are carried to their targets by continuation: in steps along straight paths,
-// each step the discrete harmonic map with the landmarks (and the boundary) at their new
-// places, with the mean value weights (Floater 2003) of the mesh as the last step left it.
-// Those weights reproduce the mesh exactly, so a step is the identity plus a smooth harmonic
-// displacement; a step is taken only if no face turns over, and halves otherwise. So g is a
-// harmonic map with hard constraints wherever one step suffices, and a composition of
-// near-identity harmonic steps, each checked unfolded, where the landmarks move far. Boundary
-// landmarks move the boundary along the circle by a monotone piecewise-linear map of the angle.
+// interior landmarks are carried to their targets by continuation along straight paths: each
+// step moves the mesh by a smooth displacement that is exact at the landmarks (a thin-plate
+// spline through their displacements, cut off to vanish on the circle), and is taken only if
+// no face turns over, halved otherwise. Boundary landmarks first move the boundary along the
+// circle by a monotone piecewise-linear map of the angle, the interior following as the
+// harmonic map with the mesh's mean value weights (Floater 2003), which cannot fold for a
+// convex boundary.
 //
 // On the sphere the landmarks first fix a rotation (Kabsch), then the same steps run in the
 // stereographic plane seen from a pole far from every landmark, on the vertices inside a
 // circle that holds every landmark path; outside it g is that rotation.
+//
+// Conformal parameter domains are unique only up to the Moebius group (Thm 2.13 on the disk,
+// sec. 3.2.5 on the sphere), so g can also start from the least-squares Moebius map of the
+// landmarks (a turn composed with the disk's or the ball's automorphism sending a point a to
+// 0, fitted by Levenberg-Marquardt): a bijection, conformal, and on the disk harmonic like the
+// turn (it is holomorphic). The spline steps then carry only what no Moebius map fits. Where
+// the steps cannot carry the landmarks unfolded from the start asked for, the other start is
+// tried before refusing: the area-preserving domains of mannequin-devil and its remeshed,
+// deformed copies are matched from the Moebius start where the turn's paths fold the mesh.
 #pragma once
 
 #include <Eigen/Core>
@@ -39,9 +47,16 @@ struct LandmarkPair {
   std::string name;
 };
 
+/// What g starts from before the landmark steps: the least-squares rotation (area-preserving
+/// domains) or the least-squares Moebius transformation (conformal domains).
+enum class MatchStart { kRotation, kMobius };
+
 struct DomainMatch {
   mesh::Vertices mapped;       // g of every vertex (#V by 3; z = 0 on the disk)
   double rotation_angle = 0;   // the least-squares turn g starts from, radians
+  MatchStart start = MatchStart::kRotation;  // the start used (the other one where the first was refused)
+  Eigen::Vector3d mobius_a = Eigen::Vector3d::Zero();  // the automorphism's a (zero: a rotation)
+  double start_rms = 0;        // the landmarks' rms distance from their targets after the start
   int steps = 0;               // harmonic steps that moved the landmarks (0: the turn sufficed)
   double max_landmark_error = 0;  // max |g(p_k) - q_k| over the landmarks (round-off)
 };
@@ -52,10 +67,11 @@ struct DomainMatch {
 /// one, two landmarks at one place, boundary landmarks in a different order around the
 /// circle) and for landmarks the mesh cannot follow unfolded (steps below 1e-6 of the way),
 /// naming the two nearest the fold.
-DomainMatch match_disks(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks);
+DomainMatch match_disks(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks,
+                        MatchStart start = MatchStart::kRotation);
 
 /// g on the unit sphere (`points` on the sphere, a closed mesh). Errors as match_disks.
 DomainMatch match_spheres(const mesh::Vertices& points, const mesh::Faces& faces,
-                          const std::vector<LandmarkPair>& landmarks);
+                          const std::vector<LandmarkPair>& landmarks, MatchStart start = MatchStart::kRotation);
 
 }  // namespace brenier::registration

@@ -5,10 +5,12 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <complex>
 #include <filesystem>
 #include <fstream>
 
 #include "conformal/conformal_map.hpp"
+#include "conformal/mobius.hpp"
 #include "expect_error.hpp"
 #include "jobs/jobs.hpp"
 #include "mesh/geometry.hpp"
@@ -143,6 +145,81 @@ TEST(DomainMatch, SphereLandmarksAreHitWithoutFoldsAndTheSphereCoveredOnce) {
   EXPECT_EQ(folds(s, g.mapped, true), 0);
   EXPECT_TRUE(quality::covers_once(quality::sphere_degree(s.F, g.mapped)));
   for (int i = 0; i < s.num_vertices(); ++i) EXPECT_NEAR(g.mapped.row(i).norm(), 1, 1e-9);
+}
+
+TEST(DomainMatch, LandmarksMovedByAMoebiusMapOfTheDiskAreMatchedByThatMap) {
+  // q_k = M(p_k), M(z) = e^{0.4 i} (z - a) / (1 - conj(a) z): the Moebius start recovers M
+  // at every vertex, not only at the landmarks; the turn alone leaves a spline's guess
+  // between them.
+  const mesh::TriMesh d = mesh::make_disk(16);
+  const std::complex<double> a(0.25, -0.15);
+  auto M = [&](const Eigen::Vector3d& x) {
+    const std::complex<double> w = std::polar(1.0, 0.4) * conformal::disk_automorphism({x.x(), x.y()}, a);
+    return Eigen::Vector3d(w.real(), w.imag(), 0);
+  };
+  std::vector<LandmarkPair> l;
+  for (const Eigen::Vector3d& p : {Eigen::Vector3d(0.3, 0.1, 0), Eigen::Vector3d(-0.4, 0.3, 0), Eigen::Vector3d(0.1, -0.6, 0),
+                                   Eigen::Vector3d(-0.2, -0.3, 0), Eigen::Vector3d(0.6, 0.5, 0), Eigen::Vector3d(-0.7, -0.1, 0)})
+    l.push_back(pair(d, p, M(d.V.row(vertex_at(d, p)).transpose()), "p"));
+  double worst = 0;
+  const DomainMatch g = match_disks(d.V, d.F, l, MatchStart::kMobius);
+  for (int i = 0; i < d.num_vertices(); ++i) worst = std::max(worst, (g.mapped.row(i).transpose() - M(d.V.row(i).transpose())).norm());
+  EXPECT_EQ(g.start, MatchStart::kMobius);
+  EXPECT_LT(worst, 1e-6);
+  EXPECT_NEAR(g.mobius_a.x(), a.real(), 1e-7);
+  EXPECT_NEAR(g.mobius_a.y(), a.imag(), 1e-7);
+  EXPECT_LT(g.start_rms, 1e-7);
+  EXPECT_EQ(folds(d, g.mapped, false), 0);
+
+  const DomainMatch turn = match_disks(d.V, d.F, l, MatchStart::kRotation);
+  double turn_worst = 0;
+  for (int i = 0; i < d.num_vertices(); ++i)
+    turn_worst = std::max(turn_worst, (turn.mapped.row(i).transpose() - M(d.V.row(i).transpose())).norm());
+  EXPECT_LT(turn.max_landmark_error, 1e-9);
+  EXPECT_GT(turn_worst, 0.02);
+}
+
+TEST(DomainMatch, LandmarksTheTurnCannotCarryAreCarriedFromTheMoebiusStart) {
+  // On a coarse disk a strong Moebius map (a = 0.6 + 0.1i) moves six landmarks along paths
+  // the turn's spline steps cannot follow unfolded; the match falls back to the Moebius
+  // start and says so, rather than refusing.
+  const mesh::TriMesh d = mesh::make_disk(6);
+  const std::complex<double> a(0.6, 0.1);
+  std::vector<LandmarkPair> l;
+  for (const Eigen::Vector3d& p : {Eigen::Vector3d(0.3, 0.1, 0), Eigen::Vector3d(-0.4, 0.3, 0), Eigen::Vector3d(0.1, -0.6, 0),
+                                   Eigen::Vector3d(-0.2, -0.3, 0), Eigen::Vector3d(0.6, 0.5, 0), Eigen::Vector3d(-0.7, -0.1, 0)}) {
+    const int v = vertex_at(d, p);
+    const std::complex<double> w = std::polar(1.0, 0.4) * conformal::disk_automorphism({d.V(v, 0), d.V(v, 1)}, a);
+    l.push_back(pair(d, d.V.row(v).transpose(), {w.real(), w.imag(), 0}, std::to_string(v)));
+  }
+  const DomainMatch g = match_disks(d.V, d.F, l, MatchStart::kRotation);
+  EXPECT_EQ(g.start, MatchStart::kMobius);
+  EXPECT_LT(g.max_landmark_error, 1e-9);
+  EXPECT_EQ(folds(d, g.mapped, false), 0);
+}
+
+TEST(DomainMatch, LandmarksMovedByAMoebiusMapOfTheSphereAreMatchedByThatMap) {
+  // q_k = R T_a(p_k), T_a the ball's automorphism sending a to 0: the Moebius start recovers
+  // it at every vertex; a rotation alone does not.
+  const mesh::TriMesh s = mesh::make_icosphere(3);
+  const Eigen::Vector3d a(0.2, -0.1, 0.15);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(0.8, Eigen::Vector3d(1, -1, 2).normalized()).toRotationMatrix();
+  auto M = [&](const Eigen::Vector3d& x) -> Eigen::Vector3d { return R * conformal::sphere_automorphism(x.normalized(), a); };
+  std::vector<LandmarkPair> l;
+  for (int v : {0, 5, 40, 100, 300, 600}) l.push_back(pair(s, s.V.row(v).transpose(), M(s.V.row(v).transpose()), std::to_string(v)));
+  const DomainMatch g = match_spheres(s.V, s.F, l, MatchStart::kMobius);
+  double worst = 0;
+  for (int i = 0; i < s.num_vertices(); ++i) worst = std::max(worst, (g.mapped.row(i).transpose() - M(s.V.row(i).transpose())).norm());
+  EXPECT_LT(worst, 1e-6);
+  EXPECT_LT((g.mobius_a - a).norm(), 1e-6);
+  EXPECT_EQ(folds(s, g.mapped, true), 0);
+  EXPECT_TRUE(quality::covers_once(quality::sphere_degree(s.F, g.mapped)));
+
+  const DomainMatch turn = match_spheres(s.V, s.F, l, MatchStart::kRotation);
+  double turn_worst = 0;
+  for (int i = 0; i < s.num_vertices(); ++i)
+    turn_worst = std::max(turn_worst, (turn.mapped.row(i).transpose() - M(s.V.row(i).transpose())).norm());
+  EXPECT_GT(turn_worst, 0.02);
 }
 
 TEST(Correspondence, LocatesPointsInThePlaneAndOnTheSphere) {
