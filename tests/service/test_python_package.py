@@ -1,7 +1,7 @@
 """The Python client package (clients/python) against a live brenierd: installed with pip
 into a virtual environment over Debian's python3 (no download), then used as a user would:
 a map of a real mesh whose arrays equal the engine's output, a matrix equal to the CLI's, a
-distance, a cancelled job, a bad mesh raising with INVALID_ARGUMENT, tokens and TLS.
+distance, a registration equal to the engine's, a cancelled job, a bad mesh raising with INVALID_ARGUMENT, tokens and TLS.
 
 Usage: test_python_package.py BRENIERD BRENIER BRENIER_COMPUTE SOURCE_DIR DATA_DIR WORK_DIR
 (run with /usr/bin/python3: it installs the package into WORK_DIR/venv and runs itself
@@ -105,6 +105,26 @@ try:
           f"the matrix {D.shape} with names {D.names} is the CLI's")
     check(np.asarray(D).diagonal().max() == 0 and D[0, 1] == float(d), "its (0, 1) entry is the distance")
 
+    # A registration (Alg. 7) with landmarks: its correspondence and morph are the engine's.
+    src = grid_off(os.path.join(work, "reg_a.off"), 13, bump=0.3)
+    tgt = grid_off(os.path.join(work, "reg_b.off"), 15, bump=0.5)
+    marks = ([40, 84, 128], [48, 112, 176])
+    r = c.register(src, tgt, method="conformal", landmarks=marks)
+    for name, values in zip(("la.csv", "lb.csv"), marks):
+        open(os.path.join(work, name), "w").write("\n".join(map(str, values)) + "\n")
+    corr = os.path.join(work, "reg.csv")
+    p = subprocess.run([engine, "register", src, tgt, "--method", "conformal", "--landmarks", os.path.join(work, "la.csv"),
+                        os.path.join(work, "lb.csv"), "-o", corr, "--json"], capture_output=True, text=True)
+    table = np.loadtxt(corr, delimiter=",", skiprows=1, ndmin=2) if p.returncode == 0 else np.zeros((0, 11))
+    check(isinstance(r, brenier.RegisterResult) and len(r.source_vertex) == 169 and r.morph[1].shape == (288, 3),
+          f"a registration: {r!r}")
+    check(np.array_equal(r.target_face, table[:, 1]) and np.array_equal(r.bary, table[:, 5:8]) and
+          np.array_equal(r.positions, table[:, 8:11]), "its correspondence is brenier-compute's")
+    check(np.allclose(r.morph[0], r.positions) and r.report["domain_folded_faces"] == 0,
+          "its morph lies at the correspondence's points, with no fold")
+    check(np.abs(r.positions[marks[0]] - np.loadtxt(tgt, skiprows=2, max_rows=225)[marks[1]]).max() < 1e-9,
+          "each source landmark lands on its target landmark")
+
     # A cancelled job, and errors as exceptions with the gRPC code.
     big = grid_off(os.path.join(work, "big.off"), 260, bump=0.5)
     job = c.submit(map=brenier.client.pb.MapSpec(mesh=c.mesh_id(big), method=brenier.client.pb.AREA_PRESERVING))
@@ -117,7 +137,8 @@ try:
     tetra = os.path.join(source, "tests", "fixtures", "valid", "tetra.obj")
     for what, call in [("a closed mesh onto the disk", lambda: c.map(tetra, domain="disk")),
                        ("bytes that are no mesh", lambda: c.upload((np.zeros((3, 3)), np.array([[0, 1, 7]])))),
-                       ("an unknown method", lambda: c.map(grid, method="isometric"))]:
+                       ("an unknown method", lambda: c.map(grid, method="isometric")),
+                       ("a landmark out of range", lambda: c.register(src, tgt, landmarks=([5], [900])))]:
         try:
             call()
             check(False, f"{what} raises")

@@ -84,6 +84,28 @@ class DistanceResult:
         return f"<DistanceResult {self.distance!r}, job {self.job_id}>"
 
 
+class RegisterResult:
+    """A registration of a source surface onto a target (Alg. 7). Per source vertex, in the
+    source's vertex order: `source_vertex`, `target_face`, `target_vertices` (n x 3),
+    `bary` (n x 3, barycentric coordinates in that face) and `positions` (n x 3, the point on
+    the target); `morph` is (V, F), the source's faces over those points; `report` (dict) and
+    `job_id`."""
+
+    def __init__(self, job_id, table, morph, report):
+        self.job_id = job_id
+        self.source_vertex = table[:, 0].astype(np.int64)
+        self.target_face = table[:, 1].astype(np.int64)
+        self.target_vertices = table[:, 2:5].astype(np.int64)
+        self.bary = table[:, 5:8]
+        self.positions = table[:, 8:11]
+        self.morph = morph
+        self.report = report
+
+    def __repr__(self):
+        return (f"<RegisterResult {self.report.get('method')} on the {self.report.get('domain')}: "
+                f"{len(self.source_vertex)} source vertices, job {self.job_id}>")
+
+
 def _off_bytes(vertices, faces):
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces)
@@ -236,8 +258,8 @@ class Client:
     # ---- jobs -------------------------------------------------------------------------------
 
     def submit(self, request_id=None, **spec):
-        """Submits a job (map=pb.MapSpec, distance=pb.DistanceSpec or matrix=pb.MatrixSpec);
-        returns its pb.Job at once."""
+        """Submits a job (map=pb.MapSpec, distance=pb.DistanceSpec, matrix=pb.MatrixSpec or
+        registration=pb.RegisterSpec); returns its pb.Job at once."""
         return self._call(self._stub.SubmitJob, pb.SubmitJobRequest(request_id=request_id or uuid.uuid4().hex, **spec))
 
     def job(self, job_id):
@@ -322,6 +344,23 @@ class Client:
         job = self.watch(self.submit(matrix=spec).id, progress)
         values = np.load(io.BytesIO(self.result(job.id, "matrix.npy")), allow_pickle=False)
         return NamedMatrix(values, self._report(job.id)["shapes"])
+
+
+    def register(self, source, target, domain="disk", method="area-preserving", *, landmarks=None, cut_hole=False,
+                 tolerance=0.0, max_iterations=0, progress=None):
+        """Registers `source` onto `target` (Alg. 7: f = phi2^-1 o g o phi1, through their
+        area-preserving or conformal maps) and waits for it. `landmarks`: a pair of
+        sequences of input vertex numbers, (source's, target's), paired by order."""
+        src, tgt = ([], []) if landmarks is None else (list(landmarks[0]), list(landmarks[1]))
+        spec = pb.RegisterSpec(source=self.mesh_id(source), target=self.mesh_id(target),
+                               domain=_pick(_DOMAINS, domain, "domain"), method=_pick(_MAP_METHODS, method, "method"),
+                               cut_hole=cut_hole, source_landmarks=src, target_landmarks=tgt, tolerance=tolerance,
+                               max_iterations=max_iterations, output_format="obj")
+        job = self.watch(self.submit(registration=spec).id, progress)
+        csv = self.result(job.id, "correspondence").decode()
+        table = np.loadtxt(io.StringIO(csv), delimiter=",", skiprows=1, ndmin=2)
+        positions, _, faces = _parse_obj(self.result(job.id, "morph"))
+        return RegisterResult(job.id, table, (positions, faces), self._report(job.id))
 
 
 def _pick(table, value, what):
