@@ -12,6 +12,7 @@
 #include <functional>
 
 #include "common/error.hpp"
+#include "conformal/conformal_map.hpp"
 #include "conformal/mobius.hpp"
 #include "mesh/topology.hpp"
 
@@ -263,32 +264,22 @@ Eigen::VectorXd levenberg_marquardt(const std::function<Eigen::VectorXd(const Ei
   return x;
 }
 
-// The sign of each face's orientation as conformal::face_folded reads it (from the edge
-// vectors, which resolve the tiny faces of a conformal sphere map where det(a, b, c) is
-// round-off): in the plane (z = 0) the signed area, on the sphere the normal's component
-// along the centroid.
-std::vector<double> orientations(const mesh::Vertices& X, const mesh::Faces& F, bool sphere) {
-  std::vector<double> s(static_cast<size_t>(F.rows()));
-  for (Eigen::Index f = 0; f < F.rows(); ++f) {
-    const Eigen::Vector3d a = X.row(F(f, 0)), b = X.row(F(f, 1)), c = X.row(F(f, 2));
-    const Eigen::Vector3d n = (b - a).cross(c - a);
-    s[static_cast<size_t>(f)] = sphere ? n.dot(a + b + c) : n.z();
-  }
-  return s;
-}
-
 // Applies `map` (a Moebius start whose automorphism point is scaled by s) to every point,
 // halving s until no face turns over (a Moebius map is a bijection of the domain, but a
 // straight triangle's image can still turn over where the map bends hard). Returns s, 0 when
-// only the plain turn (s = 0) leaves every face as it was.
+// only the plain turn (s = 0) leaves every face as it was. Faces are read by
+// conformal::face_folded, from the edge vectors: det(a, b, c) of the points themselves is
+// round-off on the tiny faces of a conformal sphere map. Faces folded before are not checked.
 double unfolded_start(const mesh::Vertices& points, const mesh::Faces& F, bool sphere,
                       const std::function<mesh::Vertices(double s)>& map, mesh::Vertices& out) {
-  const std::vector<double> before = orientations(points, F, sphere);
+  const mesh::TriMesh faces{mesh::Vertices(), F};
+  std::vector<char> was_folded(static_cast<size_t>(F.rows()));
+  for (int f = 0; f < faces.num_faces(); ++f) was_folded[static_cast<size_t>(f)] = conformal::face_folded(faces, points, f, sphere);
   for (double s = 1; s > 1e-3; s /= 2) {
     out = map(s);
-    const std::vector<double> after = orientations(out, F, sphere);
     bool folded = false;
-    for (size_t f = 0; f < before.size() && !folded; ++f) folded = before[f] > 0 && !(after[f] > 0);
+    for (int f = 0; f < faces.num_faces() && !folded; ++f)
+      folded = !was_folded[static_cast<size_t>(f)] && conformal::face_folded(faces, out, f, sphere);
     if (!folded) return s;
   }
   out = map(0);
