@@ -16,6 +16,7 @@
 #include <complex>
 #include <cstdio>
 #include <cstdlib>
+#include <Eigen/Geometry>
 #include <string>
 #include <vector>
 
@@ -24,6 +25,7 @@
 #include "mesh/shapes.hpp"
 #include "mesh/topology.hpp"
 #include "mesh/validate.hpp"
+#include "register/domain_match.hpp"
 #include "register/evaluation.hpp"
 
 using namespace brenier;
@@ -66,6 +68,7 @@ std::vector<double> euclidean_errors(const registration::TruthPair& p, const std
 }
 
 bool g_euclidean = false;
+bool g_no_refine = false;  // consistency: the centroid maps, without the area refinement
 
 int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
   const std::vector<std::pair<Deformation, double>> deformations = {
@@ -131,29 +134,52 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
 int consistency(const std::string& path, Deformation d, double amount) {
   mesh::CleanMesh cm = mesh::load_mesh(path);
   mesh::require_valid(cm, path);
+  const bool sphere = mesh::compute_topology(cm.mesh).mesh_class == mesh::MeshClass::kSphere;
   const registration::TruthPair p = registration::make_truth_pair(cm.mesh, d, amount, 1.0, 6);
-  for (jobs::MapMethod method : {jobs::MapMethod::kAreaPreserving, jobs::MapMethod::kConformal}) {
-    jobs::MapRequest r;
-    r.method = method;
-    const jobs::MapOutcome a = jobs::run_map(mesh::clean(p.source), "source", r);
-    const jobs::MapOutcome b = jobs::run_map(mesh::clean(p.target), "target", r);
-    std::vector<std::complex<double>> x, y;
-    std::complex<double> sum = 0;
-    for (int v = 0; v < a.positions.rows(); ++v) {
-      const auto& t = p.truth[static_cast<size_t>(v)];
-      Eigen::Vector3d q = Eigen::Vector3d::Zero();
-      for (int k = 0; k < 3; ++k) q += t.bary[k] * b.positions.row(p.target.F(t.face, k)).transpose();
-      x.emplace_back(a.positions(v, 0), a.positions(v, 1));
-      y.emplace_back(q.x(), q.y());
-      sum += std::conj(x.back()) * y.back();
+  for (jobs::MapMethod method : {jobs::MapMethod::kAreaPreserving, jobs::MapMethod::kConformal})
+    for (bool linked : {false, true}) {
+      if (linked && (!sphere || method == jobs::MapMethod::kConformal)) continue;
+      jobs::MapRequest r;
+      r.method = method;
+      r.domain = sphere ? jobs::Domain::kSphere : jobs::Domain::kDisk;
+      r.refine = !g_no_refine;
+      // Linked: the source keeps its own pole at every stage, and the target's is the source's
+      // carried over by the best rotation of the conformal landmarks (as run_register does).
+      mesh::Vertices source_conformal;
+      Eigen::Vector3d source_pole = Eigen::Vector3d::UnitZ();
+      omt::PoleChooser own, carried;
+      if (linked) {
+        own = [&](const mesh::Vertices& X, const Eigen::Vector3d& widest) {
+          source_conformal = X;
+          return source_pole = widest;
+        };
+        carried = [&](const mesh::Vertices& X, const Eigen::Vector3d&) -> Eigen::Vector3d {
+          std::vector<Eigen::Vector3d> s, t;
+          for (size_t k = 0; k < p.source_landmarks.size(); ++k) {
+            s.push_back(source_conformal.row(p.source_landmarks[k]).transpose());
+            t.push_back(X.row(p.target_landmarks[k]).transpose());
+          }
+          return registration::best_rotation(s, t) * source_pole;
+        };
+      }
+      const jobs::MapOutcome a = jobs::run_map(mesh::clean(p.source), "source", r, {}, own);
+      const jobs::MapOutcome b = jobs::run_map(mesh::clean(p.target), "target", r, {}, carried);
+      const std::vector<double> e = registration::domain_disagreement(p, a.positions, b.positions, sphere);
+      std::printf("%s %s %.2f (%s%s): domain disagreement after the best turn: median %.4f, p90 %.4f, max %.4f\n", path.c_str(),
+                  registration::deformation_name(d), amount, jobs::map_method_name(method), linked ? ", linked poles" : "",
+                  quantile(e, 0.5), quantile(e, 0.9), quantile(e, 1.0));
+      // The landmarks after their own best rotation (what the domain match starts from).
+      std::vector<Eigen::Vector3d> ls, lt;
+      for (size_t k = 0; k < p.source_landmarks.size(); ++k) {
+        ls.push_back(a.positions.row(p.source_landmarks[k]).transpose());
+        lt.push_back(b.positions.row(p.target_landmarks[k]).transpose());
+      }
+      const Eigen::Matrix3d L = registration::best_rotation(ls, lt);
+      std::printf("  landmarks after their best rotation:");
+      for (size_t k = 0; k < ls.size(); ++k) std::printf(" %.3f", (L * ls[k] - lt[k]).norm());
+      std::printf("\n");
+      std::fflush(stdout);
     }
-    const std::complex<double> turn = std::polar(1.0, std::arg(sum));
-    std::vector<double> e;
-    for (size_t i = 0; i < x.size(); ++i) e.push_back(std::abs(turn * x[i] - y[i]));
-    std::printf("%s %s %.2f (%s): domain disagreement after the best turn: median %.4f, p90 %.4f, max %.4f\n", path.c_str(),
-                registration::deformation_name(d), amount, jobs::map_method_name(method), quantile(e, 0.5), quantile(e, 0.9),
-                quantile(e, 1.0));
-  }
   return 0;
 }
 
@@ -200,6 +226,7 @@ int main(int argc, char** argv) {
     else if (a == "--landmarks" && i + 1 < argc) landmarks = std::atoi(argv[++i]);
     else if (a == "--subdivide" && i + 1 < argc) subdivide = std::atoi(argv[++i]);
     else if (a == "--euclidean") g_euclidean = true;
+    else if (a == "--no-refine") g_no_refine = true;
     else meshes.push_back(a);
   }
   try {

@@ -16,6 +16,7 @@
 #include "mesh/io.hpp"
 #include "mesh/topology.hpp"
 #include "mesh/validate.hpp"
+#include "omt/area_preserving.hpp"
 
 namespace brenier::jobs {
 
@@ -59,9 +60,10 @@ struct MapOutcome {
 /// (conformal: Alg. 1 / sec. 3.2.5; area-preserving: Alg. 3 / sec. 3.2.5). `what` names the
 /// mesh in messages. Throws Error(kInvalidArgument) for a request that does not fit the
 /// mesh, Error(kNotConverged) for a solve that did not converge or a map that folds faces
-/// (unless allow_flips), Error(kCancelled) when `progress` returned false.
+/// (unless allow_flips), Error(kCancelled) when `progress` returned false. `pole` chooses
+/// an area-preserving sphere map's stereographic pole (omt::AreaPreservingOptions::pole).
 MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const MapRequest& request,
-                   const ProgressSink& progress = {});
+                   const ProgressSink& progress = {}, const omt::PoleChooser& pole = {});
 
 /// The mapped mesh as a file: the disk map as `vt u v` per vertex (OBJ) or u, v properties
 /// (PLY) on the input's positions, the sphere map as positions on the sphere.

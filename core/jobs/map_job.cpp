@@ -226,6 +226,7 @@ nlohmann::json map_report(const mesh::CleanMesh& cm, const MapRequest& o, const 
                 {"spreading_stages", ap->spreading_stages},
                 {"spreading_newton_iterations", ap->spreading_newton_iterations},
                 {"refined", refinement_json(ap->refinement)}};
+  if (ap && o.domain == Domain::kSphere) j["omt"]["pole"] = {ap->pole.x(), ap->pole.y(), ap->pole.z()};
   j["quality"] = {{"flipped_faces", q.flipped_faces},
                   {"degree", q.degree},
                   {"angle_distortion_deg", stats_json(q.angle_distortion_deg)},
@@ -238,7 +239,7 @@ nlohmann::json map_report(const mesh::CleanMesh& cm, const MapRequest& o, const 
 }  // namespace
 
 MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const MapRequest& o,
-                   const ProgressSink& progress) {
+                   const ProgressSink& progress, const omt::PoleChooser& pole) {
   o.validate();
   mesh::require_valid(cm, what);
   MapOutcome out;
@@ -254,7 +255,8 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
     co.progress = solver_progress(progress, "conformal", co.tolerance, 0.0, 0.95);
     map = out.disk ? conformal::map_to_disk(s.mesh, co) : conformal::map_to_sphere(s.mesh, co);
   } else {
-    const omt::AreaPreservingOptions apo = area_preserving_options(o, s, cm.input_vertices, co, progress);
+    omt::AreaPreservingOptions apo = area_preserving_options(o, s, cm.input_vertices, co, progress);
+    apo.pole = pole;
     ap = out.disk ? omt::area_preserving_disk(s.mesh, apo) : omt::area_preserving_sphere(s.mesh, apo);
     map = ap->conformal;
   }

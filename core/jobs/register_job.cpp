@@ -2,10 +2,13 @@
 // maps of the two meshes onto one parameter domain (run_map), g the landmark-matching
 // bijection of the domain (registration/domain_match.hpp), and the target located through
 // its own map (registration/correspondence.hpp).
+#include <atomic>
 #include <chrono>
+#include <exception>
 #include <cstdio>
 #include <future>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <unordered_map>
 
@@ -107,10 +110,115 @@ CorrespondenceRow row_at(const mesh::CleanMesh& tgt, int source_input, int clean
   return row;
 }
 
+// Corresponding stereographic poles for the sphere's area-preserving route (sec. 3.2.5).
+// The transport runs in the stereographic plane and commutes only with turns about its
+// pole, so two meshings of one shape, each mapped from the pole its own mesh suggests, get
+// maps that differ by more than a rotation, more than the landmark steps can carry (every
+// camel and cow pair was refused; the centroid maps of an ellipsoid and its remeshed copy
+// disagreed by 0.20 where their conformal maps agree to 0.006, bench/RESULTS.md, session
+// 31). So the source keeps its own pole, and the target's is that pole carried over by the
+// rotation that best takes the source's conformal landmarks onto the target's (the two
+// conformal maps, both Moebius-centred, agree up to about a rotation).
+class PoleLink {
+ public:
+  PoleLink(std::vector<int> source_landmarks, std::vector<int> target_landmarks)
+      : ls_(std::move(source_landmarks)), lt_(std::move(target_landmarks)), seen_(source_.get_future().share()) {}
+
+  omt::PoleChooser source() {
+    return [this](const mesh::Vertices& X, const Eigen::Vector3d& own) {
+      if (!published_.exchange(true)) source_.set_value({X, own});
+      return own;
+    };
+  }
+  omt::PoleChooser target() {
+    return [this](const mesh::Vertices& X, const Eigen::Vector3d&) -> Eigen::Vector3d {
+      const auto& [Xa, pole] = seen_.get();  // rethrows the source's failure
+      std::vector<Eigen::Vector3d> p, q;
+      for (size_t k = 0; k < ls_.size(); ++k) {
+        p.push_back(Xa.row(ls_[k]).transpose());
+        q.push_back(X.row(lt_[k]).transpose());
+      }
+      return registration::best_rotation(p, q) * pole;
+    };
+  }
+  // Called when the source's map ended without publishing its pole (it failed first), so
+  // that the target does not wait for it.
+  void source_ended(std::exception_ptr failure) {
+    if (published_.exchange(true)) return;
+    if (!failure) failure = std::make_exception_ptr(Error(ErrorCode::kInternal, "the source's map chose no pole"));
+    source_.set_exception(failure);
+  }
+
+ private:
+  std::vector<int> ls_, lt_;
+  std::promise<std::pair<mesh::Vertices, Eigen::Vector3d>> source_;
+  std::shared_future<std::pair<mesh::Vertices, Eigen::Vector3d>> seen_;
+  std::atomic<bool> published_{false};
+};
+
 int domain_folds(const mesh::TriMesh& m, const mesh::Vertices& X, bool sphere) {
   int n = 0;
   for (int f = 0; f < m.num_faces(); ++f) n += conformal::face_folded(m, X, f, sphere);
   return n;
+}
+
+// The two meshes' maps onto the domain (at once with threads > 1); the sphere's OMT maps with
+// corresponding poles (PoleLink).
+std::pair<MapOutcome, MapOutcome> map_both(const mesh::CleanMesh& source, const mesh::CleanMesh& target,
+                                           const std::string& source_what, const std::string& target_what,
+                                           const RegisterRequest& r, int threads, const ProgressSink& progress) {
+  MapRequest mr;
+  mr.domain = r.domain;
+  mr.method = r.method;
+  mr.cut_hole = r.cut_hole;
+  mr.tolerance = r.tolerance;
+  mr.max_iterations = r.max_iterations;
+  // The sphere's OMT route registers the centroid maps (Alg. 3 as it stands). The face-by-face
+  // refinement is a local descent whose answer is not unique (any area-preserving map composed
+  // with it is another), so two meshings of one shape drift apart under it: cow's maps with
+  // corresponding poles disagree by 0.05 (median chord) as centroid maps and by 0.15 refined
+  // (bench/RESULTS.md, session 32).
+  const bool sphere = r.domain == Domain::kSphere;
+  if (sphere) mr.refine = false;
+  MapRequest ms = mr, mt = mr;
+  if (r.cut_hole && !r.source_landmarks.empty()) {
+    ms.hole_vertex = r.source_landmarks[0];
+    mt.hole_vertex = r.target_landmarks[0];
+  }
+  std::mutex m;
+  std::optional<PoleLink> poles;
+  if (sphere && r.method == MapMethod::kAreaPreserving) {
+    std::vector<int> ls, lt;
+    const std::vector<int> ta = inverse(source.vertex_origin, source.input_vertices),
+                           tb = inverse(target.vertex_origin, target.input_vertices);
+    for (size_t k = 0; k < r.source_landmarks.size(); ++k) {
+      ls.push_back(ta[static_cast<size_t>(r.source_landmarks[k])]);
+      lt.push_back(tb[static_cast<size_t>(r.target_landmarks[k])]);
+    }
+    poles.emplace(std::move(ls), std::move(lt));
+  }
+  auto map_source = [&] {
+    try {
+      MapOutcome out = run_map(source, source_what, ms, share(progress, m, "source", 0, 0.45),
+                               poles ? poles->source() : omt::PoleChooser{});
+      if (poles) poles->source_ended(nullptr);
+      return out;
+    } catch (...) {
+      if (poles) poles->source_ended(std::current_exception());
+      throw;
+    }
+  };
+  auto map_target = [&] {
+    return run_map(target, target_what, mt, share(progress, m, "target", 0.45, 0.9),
+                   poles ? poles->target() : omt::PoleChooser{});
+  };
+  if (threads > 1) {
+    auto fa = std::async(std::launch::async, map_source);
+    MapOutcome b = map_target();
+    return {fa.get(), std::move(b)};
+  }
+  MapOutcome a = map_source();
+  return {std::move(a), map_target()};
 }
 
 }  // namespace
@@ -132,27 +240,7 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
   const bool sphere = r.domain == Domain::kSphere;
 
   const auto t0 = std::chrono::steady_clock::now();
-  MapRequest mr;
-  mr.domain = r.domain;
-  mr.method = r.method;
-  mr.cut_hole = r.cut_hole;
-  mr.tolerance = r.tolerance;
-  mr.max_iterations = r.max_iterations;
-  MapRequest ms = mr, mt = mr;
-  if (r.cut_hole && !r.source_landmarks.empty()) {
-    ms.hole_vertex = r.source_landmarks[0];
-    mt.hole_vertex = r.target_landmarks[0];
-  }
-  std::mutex m;
-  MapOutcome a, b;
-  if (threads > 1) {
-    auto fa = std::async(std::launch::async, [&] { return run_map(source, source_what, ms, share(progress, m, "source", 0, 0.45)); });
-    b = run_map(target, target_what, mt, share(progress, m, "target", 0.45, 0.9));
-    a = fa.get();
-  } else {
-    a = run_map(source, source_what, ms, share(progress, m, "source", 0, 0.45));
-    b = run_map(target, target_what, mt, share(progress, m, "target", 0.45, 0.9));
-  }
+  auto [a, b] = map_both(source, target, source_what, target_what, r, threads, progress);
   const double t_maps = seconds_since(t0);
   if (progress && !progress(Progress{"match", 0.9, 0, 0})) fail(ErrorCode::kCancelled, "cancelled");
 

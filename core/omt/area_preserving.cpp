@@ -151,18 +151,41 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   return out;
 }
 
-Points stereographic_sites(const mesh::TriMesh& m, const mesh::Vertices& X, Eigen::Matrix3d& R) {
-  // The north pole (infinity of the stereographic plane) goes to the centre of the face
-  // with the largest image, as far from every vertex as the map allows.
-  int widest = 0;
-  double widest_area = -1;
+namespace {
+
+// The face whose image under X holds the direction p (its three edge planes leave p on the
+// inner side), else the face with the middle nearest p.
+int face_holding(const mesh::TriMesh& m, const mesh::Vertices& X, const Eigen::Vector3d& p) {
+  int nearest = 0;
+  double nearest_d = std::numeric_limits<double>::infinity();
   for (int f = 0; f < m.num_faces(); ++f) {
     const Eigen::Vector3d a = X.row(m.F(f, 0)), b = X.row(m.F(f, 1)), c = X.row(m.F(f, 2));
-    const double area = (b - a).cross(c - a).norm();
-    if (area > widest_area) widest_area = area, widest = f;
+    if (p.dot(a.cross(b)) >= 0 && p.dot(b.cross(c)) >= 0 && p.dot(c.cross(a)) >= 0 && p.dot(a + b + c) > 0) return f;
+    const double d = ((a + b + c).normalized() - p).squaredNorm();
+    if (d < nearest_d) nearest_d = d, nearest = f;
+  }
+  return nearest;
+}
+
+}  // namespace
+
+Points stereographic_sites(const mesh::TriMesh& m, const mesh::Vertices& X, Eigen::Matrix3d& R,
+                           const Eigen::Vector3d* toward) {
+  // By default the north pole (infinity of the stereographic plane) goes to the centre of
+  // the face with the largest image, as far from every vertex as the map allows.
+  int pole_face = 0;
+  if (toward) {
+    pole_face = face_holding(m, X, toward->normalized());
+  } else {
+    double widest_area = -1;
+    for (int f = 0; f < m.num_faces(); ++f) {
+      const Eigen::Vector3d a = X.row(m.F(f, 0)), b = X.row(m.F(f, 1)), c = X.row(m.F(f, 2));
+      const double area = (b - a).cross(c - a).norm();
+      if (area > widest_area) widest_area = area, pole_face = f;
+    }
   }
   const Eigen::Vector3d pole =
-      (X.row(m.F(widest, 0)) + X.row(m.F(widest, 1)) + X.row(m.F(widest, 2))).transpose().normalized();
+      (X.row(m.F(pole_face, 0)) + X.row(m.F(pole_face, 1)) + X.row(m.F(pole_face, 2))).transpose().normalized();
   R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   const mesh::Vertices Y = X * R.transpose();  // rows R x
   Points sites(X.rows(), 2);
@@ -196,10 +219,11 @@ Eigen::VectorXd shortest_edges(const mesh::TriMesh& m, const mesh::Vertices& X) 
 // The ring now spans about the area its side of the surface fills, so the region inside it
 // comes out spread by that factor. Returns the new map on the sphere.
 mesh::Vertices spread_once(const mesh::TriMesh& m, const mesh::Vertices& X, const Eigen::VectorXd& nu,
-                           const std::vector<char>& deferred, const OmtOptions& omt, int stage, OmtResult& result) {
+                           const std::vector<char>& deferred, const OmtOptions& omt, int stage,
+                           const Eigen::Vector3d* pole, OmtResult& result) {
   const int nv = m.num_vertices();
   Eigen::Matrix3d R;
-  const Points all = stereographic_sites(m, X, R);
+  const Points all = stereographic_sites(m, X, R, pole);
   std::vector<int> slot(nv, -1);
   int kept = 0;
   for (int v = 0; v < nv; ++v)
@@ -258,6 +282,15 @@ mesh::Vertices spread_once(const mesh::TriMesh& m, const mesh::Vertices& X, cons
   return Y * R;  // rows R^T y
 }
 
+// The caller's choice of pole (AreaPreservingOptions::pole) given the conformal map X and
+// its default pole; none without a chooser.
+std::optional<Eigen::Vector3d> chosen_pole(const mesh::TriMesh& m, const mesh::Vertices& X, const AreaPreservingOptions& opt) {
+  if (!opt.pole) return std::nullopt;
+  Eigen::Matrix3d R;
+  stereographic_sites(m, X, R);
+  return opt.pole(X, R.row(2).transpose()).normalized();
+}
+
 }  // namespace
 
 AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
@@ -277,15 +310,17 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   constexpr double kCrowded = 1e-8;  // armadillo's 3e-8 transports from the conformal start
   constexpr double kDefer = 1e-6, kDeferMore = 1e-5;
   constexpr int kMaxStages = 10;
+  const std::optional<Eigen::Vector3d> chosen = chosen_pole(m, X, opt);  // none: the default pole
+  const Eigen::Vector3d* toward = chosen ? &*chosen : nullptr;
   auto transport_from = [&](const mesh::Vertices& start) {
     Eigen::Matrix3d R;
-    out.omt = transport_to_mesh_sites(m, Domain::stereographic_sphere(), stereographic_sites(m, start, R), nu, opt.omt);
+    out.omt = transport_to_mesh_sites(m, Domain::stereographic_sphere(), stereographic_sites(m, start, R, toward), nu, opt.omt);
+    out.pole = R.row(2).transpose();
     out.positions = out.omt.cells.sphere_centroid * R;  // each vertex to its cell's centroid, turned back
   };
   // The centroids, blended toward the conformal map for t > 0, then repaired: local Tutte
-  // steps, then the barrier repair of fold_repair.hpp on the folds they leave, kept only
-  // where it leaves the map's area distortion no larger and its covering degree 1. A map
-  // that wraps around the sphere more than once is beyond local repair: it is reported.
+  // steps, then fold_repair.hpp's barrier where it keeps the area distortion no larger and
+  // the degree 1. A map that wraps around the sphere more than once is reported as it is.
   auto finish = [&] {
     if (opt.t > 0)
       for (int v = 0; v < nv; ++v)
@@ -344,7 +379,7 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
       std::vector<char> deferred(nv);
       for (int v = 0; v < nv; ++v) deferred[v] = shortest[v] < defer;
       OmtResult stage;
-      start = spread_once(m, start, nu, deferred, opt.omt, ++out.spreading_stages, stage);
+      start = spread_once(m, start, nu, deferred, opt.omt, ++out.spreading_stages, toward, stage);
       out.spreading_newton_iterations += stage.iterations;
       std::vector<char> none(nv, 0);
       int left = 0;

@@ -14,6 +14,9 @@
 
 namespace brenier::omt {
 
+/// Chooses a sphere map's stereographic pole from its conformal map and the default pole.
+using PoleChooser = std::function<Eigen::Vector3d(const mesh::Vertices& conformal, const Eigen::Vector3d& widest)>;
+
 struct AreaPreservingOptions {
   conformal::ConformalOptions conformal;
   OmtOptions omt;
@@ -36,6 +39,14 @@ struct AreaPreservingOptions {
   /// Called before each round of the sphere's fold repair with (round, folds left); false
   /// cancels (Error(kCancelled)), as the solvers' progress callbacks do.
   std::function<bool(int round, int folds)> repair_progress;
+  /// Sphere: chooses the stereographic pole (sec. 3.2.5) from the conformal map and the
+  /// default pole (the middle of the face with the widest image); called once. The map
+  /// puts the pole in the middle of the face whose image holds the returned direction, so
+  /// that no site lies at infinity. Empty: the default. The plane's transport commutes with
+  /// turns about its pole only, so two meshings of one shape given poles at different places
+  /// get maps that differ by more than a rotation; registration gives them corresponding
+  /// poles through this (bench/RESULTS.md, sessions 31-32).
+  PoleChooser pole;
 };
 
 struct AreaPreservingMap {
@@ -54,6 +65,8 @@ struct AreaPreservingMap {
   double degree = 1;
   /// The face-by-face area refinement (ran = false: the seed's centroid map).
   AreaRefinement refinement;
+  /// Sphere: the stereographic pole the transport used, in the conformal map's frame.
+  Eigen::Vector3d pole = Eigen::Vector3d::UnitZ();
 };
 
 /// Vertex masses of eq. 3.30: one third of the adjacent face areas.
@@ -67,9 +80,12 @@ OmtResult transport_to_mesh_sites(const mesh::TriMesh& m, const Domain& domain, 
                                   const Eigen::VectorXd& nu, const OmtOptions& options);
 
 /// The stereographic sites of a map X of m onto the unit sphere (sec. 3.2.5): X turned by R
-/// so that the north pole lies in the middle of the face with the widest image (no site at
-/// infinity), then projected, y = (x1, x2) / (1 - x3). R gets the turn.
-Points stereographic_sites(const mesh::TriMesh& m, const mesh::Vertices& X, Eigen::Matrix3d& R);
+/// so that the north pole lies in the middle of a face (no site at infinity), then
+/// projected, y = (x1, x2) / (1 - x3). The face is the one whose image holds `toward` if
+/// given (the one with the nearest middle if none does), else the one with the widest
+/// image. R gets the turn; its last row is the pole.
+Points stereographic_sites(const mesh::TriMesh& m, const mesh::Vertices& X, Eigen::Matrix3d& R,
+                           const Eigen::Vector3d* toward = nullptr);
 
 /// With options.t > 0, the map phi_t between the area-preserving map phi_0 and the conformal
 /// map phi_1 (sec. 3.2.8): phi_t = grad u_t o phi_0 with u_t = (1 - t) |x|^2 / 2 + t u_1,

@@ -18,6 +18,17 @@
 
 namespace brenier::registration {
 
+Eigen::Matrix3d best_rotation(const std::vector<Eigen::Vector3d>& p, const std::vector<Eigen::Vector3d>& q) {
+  if (p.empty()) return Eigen::Matrix3d::Identity();
+  if (p.size() == 1) return Eigen::Quaterniond::FromTwoVectors(p[0], q[0]).toRotationMatrix();
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  for (size_t i = 0; i < p.size(); ++i) H += p[i] * q[i].transpose();
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  D(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() < 0 ? -1 : 1;
+  return svd.matrixV() * D * svd.matrixU().transpose();
+}
+
 namespace {
 
 using V2 = Eigen::Vector2d;
@@ -57,6 +68,19 @@ struct CircleMap {
 struct Refused {
   std::string message;
 };
+
+// Refuses the landmarks nearest a fold (`distance` from it, one per name).
+[[noreturn]] void refuse_nearest(const std::vector<std::string>& names, const std::vector<double>& distance) {
+  if (names.size() < 2)
+    throw Refused{"landmark " + (names.empty() ? std::string("?") : names[0]) +
+                  " cannot be moved onto its target without folding the mesh"};
+  std::vector<size_t> order(names.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return distance[a] < distance[b]; });
+  throw Refused{"landmarks " + names[order[0]] + " and " + names[order[1]] +
+                " cannot be matched without folding the mesh between them (they pass each other or move too far "
+                "for the mesh's resolution); drop or move one of them"};
+}
 
 // The continuation of harmonic maps on a planar mesh: `moving` vertices follow `path`
 // (landmarks and, on the disk, the boundary), the other fixed ones stay, the free ones are
@@ -121,18 +145,10 @@ struct Continuation {
   }
 
   [[noreturn]] void refuse(Eigen::Index bad_face) const {
-    if (landmark_vertex.size() < 2)
-      throw Refused{"landmark " + (landmark_name.empty() ? std::string("?") : landmark_name[0]) +
-                    " cannot be moved onto its target without folding the mesh"};
     const V2 y = bad_face >= 0 ? X[static_cast<size_t>(F(bad_face, 0))] : V2::Zero();
-    std::vector<size_t> order(landmark_vertex.size());
-    for (size_t i = 0; i < order.size(); ++i) order[i] = i;
-    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) {
-      return (X[static_cast<size_t>(landmark_vertex[a])] - y).norm() < (X[static_cast<size_t>(landmark_vertex[b])] - y).norm();
-    });
-    throw Refused{"landmarks " + landmark_name[order[0]] + " and " + landmark_name[order[1]] +
-                  " cannot be matched without folding the mesh between them (they pass each other or move too far "
-                  "for the mesh's resolution); drop or move one of them"};
+    std::vector<double> distance;
+    for (int v : landmark_vertex) distance.push_back((X[static_cast<size_t>(v)] - y).norm());
+    refuse_nearest(landmark_name, distance);
   }
 
   // The landmarks' current places.
@@ -197,6 +213,19 @@ struct Continuation {
   int run(const std::vector<V2>& targets) {
     std::vector<double> sign0(static_cast<size_t>(F.rows()));
     for (Eigen::Index f = 0; f < F.rows(); ++f) sign0[static_cast<size_t>(f)] = skip_face[static_cast<size_t>(f)] ? 0 : sign(X, f);
+    // Slivers (height below kSliver of the longest edge) are left out of the fold test of the
+    // landmark steps: any displacement that is not affine across one turns it over long
+    // before the mesh around it folds. The OMT centroid maps have them where three cell
+    // centroids fall nearly in line (bear's sphere map: edges 0.07, 0.11, 0.18, height 1e-4;
+    // every one of its pairs was refused for such a face, with the landmarks 0.02 from their
+    // targets). The caller mends the ones that turned (mend_slivers) or refuses.
+    constexpr double kSliver = 1e-2;
+    for (Eigen::Index f = 0; f < F.rows(); ++f) {
+      double longest = 0;
+      for (int k = 0; k < 3; ++k)
+        longest = std::max(longest, (X[static_cast<size_t>(F(f, k))] - X[static_cast<size_t>(F(f, (k + 1) % 3))]).squaredNorm());
+      if (std::abs(sign0[static_cast<size_t>(f)]) < kSliver * longest) sign0[static_cast<size_t>(f)] = 0;
+    }
     int steps = 0;
     if (!moving.empty()) {
       std::vector<V2> Y = X;
@@ -228,6 +257,32 @@ struct Continuation {
     return steps;
   }
 };
+
+// The slivers a continuation let turn over (Continuation::run), unfolded by local moves with
+// the landmarks and `fixed` held (conformal::untangle: a corner mirrored across its opposite
+// edge, or a Tutte step). A fold that stays is refused, naming the landmarks nearest it.
+void mend_slivers(const mesh::Faces& faces, mesh::Vertices& mapped, bool sphere, std::vector<char> fixed,
+                  const std::vector<LandmarkPair>& landmarks) {
+  const mesh::TriMesh m{mapped, faces};
+  auto first_folded = [&] {
+    for (int f = 0; f < m.num_faces(); ++f)
+      if (conformal::face_folded(m, mapped, f, sphere)) return f;
+    return -1;
+  };
+  if (first_folded() < 0) return;
+  for (const auto& l : landmarks) fixed[static_cast<size_t>(l.vertex)] = 1;
+  int left = 0;
+  conformal::untangle(m, mapped, sphere, fixed, left);
+  const int f = first_folded();
+  if (f < 0) return;
+  std::vector<std::string> names;
+  std::vector<double> distance;
+  for (const auto& l : landmarks) {
+    names.push_back(l.name);
+    distance.push_back((mapped.row(l.vertex) - mapped.row(m.F(f, 0))).norm());
+  }
+  refuse_nearest(names, distance);
+}
 
 // Levenberg-Marquardt on a handful of parameters, the Jacobian by central differences. A trial
 // point outside `feasible` counts as a failed step. Returns the best point found.
@@ -425,21 +480,10 @@ DomainMatch disks_from(const mesh::Vertices& points, const mesh::Faces& faces, c
   out.steps = c.run(targets);
   out.mapped = mesh::Vertices::Zero(points.rows(), 3);
   for (Eigen::Index i = 0; i < points.rows(); ++i) out.mapped.row(i).head<2>() = c.X[static_cast<size_t>(i)].transpose();
+  mend_slivers(faces, out.mapped, false, boundary, landmarks);
   for (const auto& l : landmarks)
     out.max_landmark_error = std::max(out.max_landmark_error, (out.mapped.row(l.vertex).transpose() - Eigen::Vector3d(l.q.x(), l.q.y(), 0)).norm());
   return out;
-}
-
-// The rotation taking the p's nearest the q's (Kabsch): for one landmark the shortest turn.
-Eigen::Matrix3d kabsch(const std::vector<Eigen::Vector3d>& p, const std::vector<Eigen::Vector3d>& q) {
-  if (p.empty()) return Eigen::Matrix3d::Identity();
-  if (p.size() == 1) return Eigen::Quaterniond::FromTwoVectors(p[0], q[0]).toRotationMatrix();
-  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
-  for (size_t i = 0; i < p.size(); ++i) H += p[i] * q[i].transpose();
-  Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
-  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
-  D(2, 2) = (svd.matrixV() * svd.matrixU().transpose()).determinant() < 0 ? -1 : 1;
-  return svd.matrixV() * D * svd.matrixU().transpose();
 }
 
 // A direction far from every point (the largest smallest angle among 4,000 spiral samples).
@@ -481,7 +525,7 @@ DomainMatch spheres_from(const mesh::Vertices& points, const mesh::Faces& faces,
   if (start == MatchStart::kMobius && landmarks.size() >= 3) {
     auto residual = [&](const Eigen::VectorXd& x) {
       const std::vector<Eigen::Vector3d> w = moved(x);
-      const Eigen::Matrix3d R = kabsch(w, q);
+      const Eigen::Matrix3d R = best_rotation(w, q);
       Eigen::VectorXd r(3 * static_cast<Eigen::Index>(w.size()));
       for (size_t k = 0; k < w.size(); ++k) r.segment<3>(3 * static_cast<Eigen::Index>(k)) = R * w[k] - q[k];
       return r;
@@ -489,7 +533,7 @@ DomainMatch spheres_from(const mesh::Vertices& points, const mesh::Faces& faces,
     a = levenberg_marquardt(residual, Eigen::Vector3d::Zero(), [](const Eigen::VectorXd& y) { return y.norm() <= 0.9; });
   }
   const double scale = unfolded_start(points, faces, true, [&](double s) {
-    const Eigen::Matrix3d R = kabsch(moved(s * a), q);
+    const Eigen::Matrix3d R = best_rotation(moved(s * a), q);
     mesh::Vertices y(points.rows(), 3);
     for (Eigen::Index i = 0; i < y.rows(); ++i)
       y.row(i) = (R * conformal::sphere_automorphism(points.row(i).transpose().normalized(), s * a)).transpose();
@@ -499,7 +543,7 @@ DomainMatch spheres_from(const mesh::Vertices& points, const mesh::Faces& faces,
   out.mobius_a = scale * a;
   out.start_rms = start_rms(out.mapped, landmarks);
   const std::vector<Eigen::Vector3d> p0 = moved(out.mobius_a);
-  const Eigen::Matrix3d R = kabsch(p0, q);
+  const Eigen::Matrix3d R = best_rotation(p0, q);
   out.rotation_angle = Eigen::AngleAxisd(R).angle();
   if (landmarks.size() >= 2) {
     // The steps in the stereographic plane seen from a pole far from the landmarks.
@@ -538,6 +582,7 @@ DomainMatch spheres_from(const mesh::Vertices& points, const mesh::Faces& faces,
     for (size_t i = 0; i < n; ++i)
       if (finite[i])
         out.mapped.row(static_cast<Eigen::Index>(i)) = (Q.transpose() * unstereo(c.X[i])).transpose();
+    mend_slivers(faces, out.mapped, true, c.skip_vertex, landmarks);
   }
   for (size_t k = 0; k < landmarks.size(); ++k)
     out.max_landmark_error = std::max(out.max_landmark_error, (out.mapped.row(landmarks[k].vertex).transpose() - q[k]).norm());

@@ -37,6 +37,10 @@
 
 namespace brenier::registration {
 
+/// The rotation R taking the points p nearest the points q, sum |R p_i - q_i|^2 least
+/// (Kabsch); for one point the shortest turn, for none the identity.
+Eigen::Matrix3d best_rotation(const std::vector<Eigen::Vector3d>& p, const std::vector<Eigen::Vector3d>& q);
+
 /// One landmark pair: a vertex of the source's domain mesh, the point q of the target's
 /// domain it goes to, and whether q lies on the disk's boundary circle (the target's boundary
 /// vertex). `name` names it in messages.

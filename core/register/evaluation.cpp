@@ -7,10 +7,13 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <complex>
+#include <Eigen/Geometry>
 #include <cstdio>
 #include <cstdlib>
 
 #include "common/error.hpp"
+#include "register/domain_match.hpp"
 #include "mesh/cgal_surface.hpp"
 #include "mesh/geometry.hpp"
 
@@ -248,6 +251,27 @@ std::vector<double> registration_errors(const TruthPair& pair, const std::vector
   const double scale = std::sqrt(mesh::total_area(pair.target));
   for (double& x : d) x /= scale;
   return d;
+}
+
+std::vector<double> domain_disagreement(const TruthPair& pair, const mesh::Vertices& source_domain,
+                                        const mesh::Vertices& target_domain, bool sphere) {
+  std::vector<Eigen::Vector3d> x, y;
+  for (Eigen::Index v = 0; v < source_domain.rows(); ++v) {
+    const SurfacePoint& t = pair.truth[static_cast<size_t>(v)];
+    Eigen::Vector3d q = Eigen::Vector3d::Zero();
+    for (int k = 0; k < 3; ++k) q += t.bary[k] * target_domain.row(pair.target.F(t.face, k)).transpose();
+    x.push_back(source_domain.row(v).transpose());
+    y.push_back(q);
+  }
+  Eigen::Matrix3d R = best_rotation(x, y);
+  if (!sphere) {  // the turn about the disk's centre
+    std::complex<double> sum = 0;
+    for (size_t i = 0; i < x.size(); ++i) sum += std::conj(std::complex<double>(x[i].x(), x[i].y())) * std::complex<double>(y[i].x(), y[i].y());
+    R = Eigen::AngleAxisd(std::arg(sum), Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  }
+  std::vector<double> e;
+  for (size_t i = 0; i < x.size(); ++i) e.push_back((R * x[i] - y[i]).norm());
+  return e;
 }
 
 }  // namespace brenier::registration

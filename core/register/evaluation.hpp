@@ -61,4 +61,11 @@ TruthPair make_truth_pair(const mesh::TriMesh& m, Deformation d, double amount, 
 /// the target to the true place over sqrt(target area).
 std::vector<double> registration_errors(const TruthPair& pair, const std::vector<SurfacePoint>& found, int samples);
 
+/// How far two domain maps of a pair disagree: each source vertex's image (`source_domain`,
+/// #V of pair.source by 3) against the image under `target_domain` of its true place, after
+/// the best turn over all vertices (disk: about the centre; sphere: any rotation), i.e. the
+/// part of the error no rotation g can remove. One distance per source vertex.
+std::vector<double> domain_disagreement(const TruthPair& pair, const mesh::Vertices& source_domain,
+                                        const mesh::Vertices& target_domain, bool sphere);
+
 }  // namespace brenier::registration
