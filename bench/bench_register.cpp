@@ -79,8 +79,8 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
   // truth-flips: the same flip test on the true correspondence itself (each source vertex at
   // its true place): chords of the source's faces laid on the remeshed target turn against
   // its normals where the surface curls within a face, with no fold of any map.
-  std::printf("%-28s %-8s %-16s %7s %8s %8s %8s %6s %6s %11s %7s\n", "mesh", "deform", "route", "V", "median", "mean", "p90",
-              "folds", "flips", "truth-flips", "sec");
+  std::printf("%-28s %-8s %-16s %7s %8s %8s %8s %6s %6s %11s %7s %s\n", "mesh", "deform", "route", "V", "median", "mean", "p90",
+              "folds", "flips", "truth-flips", "sec", "start");
   for (const std::string& path : meshes) {
     mesh::CleanMesh cm = mesh::load_mesh(path);
     mesh::require_valid(cm, path);
@@ -106,10 +106,11 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
           route.all_errors.insert(route.all_errors.end(), e.begin(), e.end());
           double mean = 0;
           for (double x : e) mean += x / static_cast<double>(e.size());
-          std::printf("%-28s %-8s %-16s %7d %8.4f %8.4f %8.4f %6d %6d %11d %7.2f\n", path.substr(path.rfind('/') + 1).c_str(),
+          std::printf("%-28s %-8s %-16s %7d %8.4f %8.4f %8.4f %6d %6d %11d %7.2f %s\n", path.substr(path.rfind('/') + 1).c_str(),
                       registration::deformation_name(d), jobs::map_method_name(route.method), a.mesh.num_vertices(),
                       quantile(e, 0.5), mean, quantile(e, 0.9), out.report["domain_folded_faces"].get<int>(),
-                      out.report["morph_flipped_faces"].get<int>(), truth_flips, sec);
+                      out.report["morph_flipped_faces"].get<int>(), truth_flips, sec,
+                      out.report["match"]["start"].get<std::string>().c_str());
         } catch (const std::exception& e) {
           std::printf("%-28s %-8s %-16s failed: %s\n", path.c_str(), registration::deformation_name(d),
                       jobs::map_method_name(route.method), e.what());
