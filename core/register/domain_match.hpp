@@ -13,7 +13,10 @@
 // no face turns over, halved otherwise. Boundary landmarks first move the boundary along the
 // circle by a monotone piecewise-linear map of the angle, the interior following as the
 // harmonic map with the mesh's mean value weights (Floater 2003), which cannot fold for a
-// convex boundary.
+// convex boundary. Slivers of the domain mesh (faces thinner than 1 % of their longest edge,
+// as three OMT cell centroids can fall nearly in line) are left out of that fold test: a
+// smooth step turns them over long before the mesh around them folds. Those that turned are
+// unfolded afterwards by local moves with the landmarks held, or the pair is refused.
 //
 // On the sphere the landmarks first fix a rotation (Kabsch), then the same steps run in the
 // stereographic plane seen from a pole far from every landmark, on the vertices inside a
