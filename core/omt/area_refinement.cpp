@@ -344,11 +344,17 @@ class FaceNewton {
   }
 
   // The energy at X (infinite when a face degenerates or turns over).
+  // The faces' terms are summed in face order, not by an OpenMP reduction: libgomp combines
+  // the threads' partial sums in the order they finish, so the sum's last bits, and through
+  // the line search the map's, changed from run to run (a brenierd job's lion-head map once
+  // differed from the engine's by 1e-12).
   double energy(const mesh::Vertices& X, double theta) const {
-    double E = 0;
     const long nf = static_cast<long>(faces_.size());
-#pragma omp parallel for reduction(+ : E) schedule(static)
-    for (long k = 0; k < nf; ++k) E += geometry_.term(X, faces_[k], theta);
+    terms_.resize(faces_.size());
+#pragma omp parallel for schedule(static)
+    for (long k = 0; k < nf; ++k) terms_[static_cast<size_t>(k)] = geometry_.term(X, faces_[k], theta);
+    double E = 0;
+    for (double t : terms_) E += t;
     return E;
   }
 
@@ -471,6 +477,7 @@ class FaceNewton {
   int n_;
   Geometry& geometry_;
   std::vector<Local> local_;           // per face, in its corners' unknowns
+  mutable std::vector<double> terms_;  // per face: the energy's terms (energy())
   std::vector<Eigen::Vector2d> corner_g_;  // per face corner, the gradient in the geometry's frame
   std::vector<Eigen::Vector2d> tangent_;   // per vertex on the circle, the tangent at the step's start
   Eigen::SparseMatrix<double> H_;
