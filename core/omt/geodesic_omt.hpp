@@ -26,7 +26,10 @@
 // certified at every evaluation: a site j missing at some corner of face T is at least
 // R_j - diam(T) from every point of T, so it cannot win on T while the lower envelope of
 // T's candidates stays below (R_j - diam T)^2 - h_j; where that fails the radii grow and
-// the distances are recomputed.
+// the distances are recomputed. At each evaluation every vertex first sorts out the few
+// sites that can matter on its faces (power distance below a bound of its faces' lower
+// envelopes), so a face reads those, not every site kept at its corners; the cells are the
+// same either way.
 #pragma once
 
 #include <Eigen/Core>

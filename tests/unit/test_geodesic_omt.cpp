@@ -71,6 +71,24 @@ TEST(Geodesics, HeatMethodOnAPlaneAndASphere) {
   EXPECT_LT(err, 0.04);  // measured 0.033
 }
 
+TEST(Geodesics, EachSourcesFieldIsTheSameInAnyBatch) {
+  // distances() solves its sources in blocks spread over the threads, each thread with its
+  // own solve workspace and one shared factor: 21 sources in one call (three blocks) give
+  // each source the field it gets alone, and again on a second call (the workspaces reused).
+  const mesh::TriMesh s = mesh::make_icosphere(4);
+  std::vector<mesh::SurfacePoint> from;
+  for (int k = 0; k < 21; ++k) from.push_back(at_vertex(s, (k * 97) % s.num_vertices()));
+  mesh::HeatGeodesics heat(s);
+  const Eigen::MatrixXd all = heat.distances(from), again = heat.distances(from);
+  ASSERT_EQ(all.cols(), 21);
+  for (int k = 0; k < 21; ++k) {
+    const Eigen::MatrixXd alone = mesh::HeatGeodesics(s).distances({from[static_cast<size_t>(k)]});
+    EXPECT_LT((all.col(k) - alone.col(0)).cwiseAbs().maxCoeff(), 1e-12) << k;
+    EXPECT_EQ(all.col(k), again.col(k)) << k;
+    EXPECT_NEAR(all((k * 97) % s.num_vertices(), k), 0, 0.05);  // zero at the source, up to the smoothing
+  }
+}
+
 TEST(GeodesicOmt, FlatPatchMatchesThePlanarPowerDiagram) {
   // Exact geodesics on a flat square: d_i^2 - d_j^2 is affine, so the geodesic power diagram
   // is the planar one and the heights agree with the planar solver's (w_i = |y_i|^2 + 2 h_i
