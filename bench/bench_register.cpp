@@ -155,12 +155,7 @@ int consistency(const std::string& path, Deformation d, double amount) {
           return source_pole = widest;
         };
         carried = [&](const mesh::Vertices& X, const Eigen::Vector3d&) -> Eigen::Vector3d {
-          std::vector<Eigen::Vector3d> s, t;
-          for (size_t k = 0; k < p.source_landmarks.size(); ++k) {
-            s.push_back(source_conformal.row(p.source_landmarks[k]).transpose());
-            t.push_back(X.row(p.target_landmarks[k]).transpose());
-          }
-          return registration::best_rotation(s, t) * source_pole;
+          return registration::landmark_rotation(source_conformal, p.source_landmarks, X, p.target_landmarks) * source_pole;
         };
       }
       const jobs::MapOutcome a = jobs::run_map(mesh::clean(p.source), "source", r, {}, own);
@@ -170,14 +165,11 @@ int consistency(const std::string& path, Deformation d, double amount) {
                   registration::deformation_name(d), amount, jobs::map_method_name(method), linked ? ", linked poles" : "",
                   quantile(e, 0.5), quantile(e, 0.9), quantile(e, 1.0));
       // The landmarks after their own best rotation (what the domain match starts from).
-      std::vector<Eigen::Vector3d> ls, lt;
-      for (size_t k = 0; k < p.source_landmarks.size(); ++k) {
-        ls.push_back(a.positions.row(p.source_landmarks[k]).transpose());
-        lt.push_back(b.positions.row(p.target_landmarks[k]).transpose());
-      }
-      const Eigen::Matrix3d L = registration::best_rotation(ls, lt);
+      const Eigen::Matrix3d L = registration::landmark_rotation(a.positions, p.source_landmarks, b.positions, p.target_landmarks);
       std::printf("  landmarks after their best rotation:");
-      for (size_t k = 0; k < ls.size(); ++k) std::printf(" %.3f", (L * ls[k] - lt[k]).norm());
+      for (size_t k = 0; k < p.source_landmarks.size(); ++k)
+        std::printf(" %.3f", (L * a.positions.row(p.source_landmarks[k]).transpose() -
+                              b.positions.row(p.target_landmarks[k]).transpose()).norm());
       std::printf("\n");
       std::fflush(stdout);
     }

@@ -133,12 +133,7 @@ class PoleLink {
   omt::PoleChooser target() {
     return [this](const mesh::Vertices& X, const Eigen::Vector3d&) -> Eigen::Vector3d {
       const auto& [Xa, pole] = seen_.get();  // rethrows the source's failure
-      std::vector<Eigen::Vector3d> p, q;
-      for (size_t k = 0; k < ls_.size(); ++k) {
-        p.push_back(Xa.row(ls_[k]).transpose());
-        q.push_back(X.row(lt_[k]).transpose());
-      }
-      return registration::best_rotation(p, q) * pole;
+      return registration::landmark_rotation(Xa, ls_, X, lt_) * pole;
     };
   }
   // Called when the source's map ended without publishing its pole (it failed first), so

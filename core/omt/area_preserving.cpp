@@ -167,25 +167,31 @@ int face_holding(const mesh::TriMesh& m, const mesh::Vertices& X, const Eigen::V
   return nearest;
 }
 
+// The face with the largest image under X: the default pole's (as far from every vertex as
+// the map allows).
+int widest_face(const mesh::TriMesh& m, const mesh::Vertices& X) {
+  int widest = 0;
+  double widest_area = -1;
+  for (int f = 0; f < m.num_faces(); ++f) {
+    const Eigen::Vector3d a = X.row(m.F(f, 0)), b = X.row(m.F(f, 1)), c = X.row(m.F(f, 2));
+    const double area = (b - a).cross(c - a).norm();
+    if (area > widest_area) widest_area = area, widest = f;
+  }
+  return widest;
+}
+
+// The direction of the middle of face f's image under X.
+Eigen::Vector3d face_direction(const mesh::TriMesh& m, const mesh::Vertices& X, int f) {
+  return (X.row(m.F(f, 0)) + X.row(m.F(f, 1)) + X.row(m.F(f, 2))).transpose().normalized();
+}
+
 }  // namespace
 
 Points stereographic_sites(const mesh::TriMesh& m, const mesh::Vertices& X, Eigen::Matrix3d& R,
                            const Eigen::Vector3d* toward) {
-  // By default the north pole (infinity of the stereographic plane) goes to the centre of
-  // the face with the largest image, as far from every vertex as the map allows.
-  int pole_face = 0;
-  if (toward) {
-    pole_face = face_holding(m, X, toward->normalized());
-  } else {
-    double widest_area = -1;
-    for (int f = 0; f < m.num_faces(); ++f) {
-      const Eigen::Vector3d a = X.row(m.F(f, 0)), b = X.row(m.F(f, 1)), c = X.row(m.F(f, 2));
-      const double area = (b - a).cross(c - a).norm();
-      if (area > widest_area) widest_area = area, pole_face = f;
-    }
-  }
-  const Eigen::Vector3d pole =
-      (X.row(m.F(pole_face, 0)) + X.row(m.F(pole_face, 1)) + X.row(m.F(pole_face, 2))).transpose().normalized();
+  // The north pole (infinity of the stereographic plane) goes to the middle of the face
+  // holding `toward`, by default of the face with the largest image.
+  const Eigen::Vector3d pole = face_direction(m, X, toward ? face_holding(m, X, toward->normalized()) : widest_face(m, X));
   R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   const mesh::Vertices Y = X * R.transpose();  // rows R x
   Points sites(X.rows(), 2);
@@ -286,9 +292,7 @@ mesh::Vertices spread_once(const mesh::TriMesh& m, const mesh::Vertices& X, cons
 // its default pole; none without a chooser.
 std::optional<Eigen::Vector3d> chosen_pole(const mesh::TriMesh& m, const mesh::Vertices& X, const AreaPreservingOptions& opt) {
   if (!opt.pole) return std::nullopt;
-  Eigen::Matrix3d R;
-  stereographic_sites(m, X, R);
-  return opt.pole(X, R.row(2).transpose()).normalized();
+  return opt.pole(X, face_direction(m, X, widest_face(m, X))).normalized();
 }
 
 }  // namespace

@@ -29,6 +29,16 @@ Eigen::Matrix3d best_rotation(const std::vector<Eigen::Vector3d>& p, const std::
   return svd.matrixV() * D * svd.matrixU().transpose();
 }
 
+Eigen::Matrix3d landmark_rotation(const mesh::Vertices& source, const std::vector<int>& source_landmarks,
+                                  const mesh::Vertices& target, const std::vector<int>& target_landmarks) {
+  std::vector<Eigen::Vector3d> p, q;
+  for (size_t k = 0; k < source_landmarks.size() && k < target_landmarks.size(); ++k) {
+    p.push_back(source.row(source_landmarks[k]).transpose());
+    q.push_back(target.row(target_landmarks[k]).transpose());
+  }
+  return best_rotation(p, q);
+}
+
 namespace {
 
 using V2 = Eigen::Vector2d;

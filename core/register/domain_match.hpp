@@ -44,6 +44,12 @@ namespace brenier::registration {
 /// (Kabsch); for one point the shortest turn, for none the identity.
 Eigen::Matrix3d best_rotation(const std::vector<Eigen::Vector3d>& p, const std::vector<Eigen::Vector3d>& q);
 
+/// best_rotation of the landmarks: rows `source_landmarks` of `source` onto rows
+/// `target_landmarks` of `target`, paired by order (two maps of paired meshes onto the sphere:
+/// the rotation that carries one map's pole, or any point, over to the other's).
+Eigen::Matrix3d landmark_rotation(const mesh::Vertices& source, const std::vector<int>& source_landmarks,
+                                  const mesh::Vertices& target, const std::vector<int>& target_landmarks);
+
 /// One landmark pair: a vertex of the source's domain mesh, the point q of the target's
 /// domain it goes to, and whether q lies on the disk's boundary circle (the target's boundary
 /// vertex). `name` names it in messages.

@@ -321,12 +321,7 @@ TEST(Register, CorrespondingPolesMakeTheSphereOmtMapsOfTwoMeshingsAgree) {
   });
   const jobs::MapOutcome own = jobs::run_map(as_clean(p.target), "target", r);
   const jobs::MapOutcome carried = jobs::run_map(as_clean(p.target), "target", r, {}, [&](const mesh::Vertices& X, const Eigen::Vector3d&) {
-    std::vector<Eigen::Vector3d> s, t;
-    for (size_t k = 0; k < p.source_landmarks.size(); ++k) {
-      s.push_back(source_conformal.row(p.source_landmarks[k]).transpose());
-      t.push_back(X.row(p.target_landmarks[k]).transpose());
-    }
-    return Eigen::Vector3d(best_rotation(s, t) * source_pole);
+    return Eigen::Vector3d(landmark_rotation(source_conformal, p.source_landmarks, X, p.target_landmarks) * source_pole);
   });
   auto disagreement = [&](const jobs::MapOutcome& b) {
     std::vector<double> e = domain_disagreement(p, a.positions, b.positions, true);
