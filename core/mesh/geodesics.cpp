@@ -97,16 +97,17 @@ Eigen::Vector2d grad_lambda(const std::array<Eigen::Vector2d, 3>& P, int c, doub
 
 namespace {
 
-// Steps 2 and 3 of the heat method for the columns of U: the normalized field per face,
-// X = -grad u / |grad u|, and its integrated divergence per vertex
-//   (div X)_i = 1/2 sum over faces at i of cot(angle at l) (e_ij . X) + cot(angle at j) (e_il . X)
-// (the cotangent formula of the paper). Faces add into their corners, so the columns run in
-// parallel when `parallel`, each over all faces in order.
 struct Layout {  // the intrinsic triangulation's faces, laid out (HeatGeodesics::Impl)
   const std::vector<std::array<int, 3>>& tri;
   const std::vector<std::array<Eigen::Vector2d, 3>>& layout;
   const std::vector<Eigen::Vector3d>& cot;
 };
+
+// Steps 2 and 3 of the heat method for the columns of U: the normalized field per face,
+// X = -grad u / |grad u|, and its integrated divergence per vertex
+//   (div X)_i = 1/2 sum over faces at i of cot(angle at l) (e_ij . X) + cot(angle at j) (e_il . X)
+// (the cotangent formula of the paper). Faces add into their corners, so the columns run in
+// parallel when `parallel`, each over all faces in order.
 void divergence(const Layout& s, const Eigen::MatrixXd& U, Eigen::MatrixXd& div, bool parallel) {
   const int nf = static_cast<int>(s.tri.size());
   div.setZero(U.rows(), U.cols());
@@ -205,23 +206,21 @@ void HeatGeodesics::distances(const std::vector<SurfacePoint>& sources, Eigen::M
   // Sources go through the solves in blocks of up to 8 (a multi-column solve runs in BLAS 3;
   // measured on lion-head subdivided, 33K and 133K vertices, 8 was as fast as any larger
   // block) and at most 12 MB per matrix. The solves run single-threaded (BLAS too), so the
-  // blocks are spread over the threads, each with its own lane: on 2 cores, 1,000 sources on
-  // 133K vertices took 15 s with one lane. Each column's arithmetic is the same on any
-  // number of lanes.
+  // blocks are dealt round to lanes, one per thread OpenMP may use here (one inside a worker
+  // pool's task), each with its own solver state: on 2 cores, 1,000 sources on 133K vertices
+  // took 15 s with one lane. Each column's arithmetic is the same on any number of lanes;
+  // parallel_for rethrows a lane's failure after all have stopped.
   const int block = std::clamp(static_cast<int>((12 << 20) / (8L * nv)), 1, 8);
   const int blocks = (ns + block - 1) / block;
   const int lanes = std::max(1, std::min(blocks, omp_get_max_threads()));
   while (static_cast<int>(s.lanes.size()) < lanes) s.lanes.push_back(std::make_unique<Lane>());
-#pragma omp parallel for schedule(dynamic, 1) num_threads(lanes)
-  for (int k = 0; k < blocks; ++k) {
-    Lane& lane = *s.lanes[static_cast<size_t>(lanes > 1 ? omp_get_thread_num() : 0)];
-    const int first = k * block, b = std::min(block, ns - first);
+  auto solve_block = [&](int first, int b, Lane& lane) {
     lane.U0.setZero(nv, b);
     for (int c = 0; c < b; ++c) {
       const SurfacePoint& p = sources[static_cast<size_t>(first + c)];
       for (int j = 0; j < 3; ++j) lane.U0(m.F(p.face, j), c) += p.bary[j];
     }
-    lane.heat.solve_into(s.heat.factor(), lane.U0, lane.U);  // step 1
+    lane.heat.solve_into(s.heat.factor(), lane.U0, lane.U);             // step 1
     divergence({s.tri, s.layout, s.cot}, lane.U, lane.div, lanes == 1);  // steps 2 and 3
     lane.rhs = -lane.div.bottomRows(nv - 1);
     lane.poisson.solve_into(s.poisson.factor(), lane.rhs, lane.phi);
@@ -231,7 +230,10 @@ void HeatGeodesics::distances(const std::vector<SurfacePoint>& sources, Eigen::M
       D.col(first + c).tail(nv - 1) = lane.phi.col(c);
       D.col(first + c).array() -= D.col(first + c).minCoeff();
     }
-  }
+  };
+  parallel_for(lanes, lanes, [&](int l) {
+    for (int k = l; k < blocks; k += lanes) solve_block(k * block, std::min(block, ns - k * block), *s.lanes[static_cast<size_t>(l)]);
+  });
 }
 
 Eigen::VectorXd exact_distances(const TriMesh& m, const SurfacePoint& from) {
