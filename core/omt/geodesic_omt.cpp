@@ -391,11 +391,30 @@ class Transport {
     return it != l.end() && it->site == s ? &*it : nullptr;
   }
 
+  // The face's candidates offered in site order, each with psi at the three corners: the
+  // envelope E is the lowest highest corner among them, and the live sites those whose lowest
+  // corner is at most E. E only falls along the pass, so a live site is at most E where it
+  // is offered: each is kept then, and the ones above the final E are dropped at the end.
+  struct LowerEnvelope {
+    std::vector<std::pair<int, Eigen::Vector3d>>& live;
+    double value = std::numeric_limits<double>::infinity();
+    explicit LowerEnvelope(std::vector<std::pair<int, Eigen::Vector3d>>& out) : live(out) { live.clear(); }
+    void offer(int site, const Eigen::Vector3d& psi) {
+      value = std::min(value, psi.maxCoeff());
+      if (psi.minCoeff() <= value) live.emplace_back(site, psi);
+    }
+    double finish() {
+      const double e = value;
+      live.erase(std::remove_if(live.begin(), live.end(), [e](const auto& c) { return c.second.minCoeff() > e; }),
+                 live.end());
+      return e;
+    }
+  };
+
   // The face's live sites (those whose lowest corner is at most the envelope), in site order,
   // with psi at the corners, and the envelope E (the lowest highest corner among the sites kept
   // at all three corners, the candidates; sites above it nowhere win): from the corners' short
-  // lists. E only falls along a pass in site order, so a live site is below E where it is met:
-  // those are kept, then filtered by the final E. False where a corner's list is full.
+  // lists (LowerEnvelope). False where a corner's list is full.
   bool live_from_short_lists(const int corner[3], const Eigen::VectorXd& h, const LowLists& low,
                              std::vector<std::pair<int, Eigen::Vector3d>>& live, double& envelope) const {
     const Near* list[3];
@@ -405,8 +424,7 @@ class Transport {
       if (size[k] == kFull) return false;
       list[k] = low.entry.data() + static_cast<size_t>(corner[k]) * kLow;
     }
-    envelope = std::numeric_limits<double>::infinity();
-    live.clear();
+    LowerEnvelope env(live);
     for (;;) {
       int s = std::numeric_limits<int>::max();
       for (int k = 0; k < 3; ++k)
@@ -423,13 +441,9 @@ class Transport {
           candidate = false;
         }
       }
-      if (!candidate) continue;
-      const Eigen::Vector3d psi = d.array() - h[s];
-      envelope = std::min(envelope, psi.maxCoeff());
-      if (psi.minCoeff() <= envelope) live.emplace_back(s, psi);
+      if (candidate) env.offer(s, d.array() - h[s]);
     }
-    live.erase(std::remove_if(live.begin(), live.end(), [envelope](const auto& c) { return c.second.minCoeff() > envelope; }),
-               live.end());
+    envelope = env.finish();
     return std::isfinite(envelope);
   }
 
@@ -455,20 +469,15 @@ class Transport {
         S.in2[static_cast<size_t>(n.site)] = stamp;
         S.d2[static_cast<size_t>(n.site)] = n.d2;
       }
-    auto& live = S.live;
-    live.clear();
-    envelope = std::numeric_limits<double>::infinity();
+    LowerEnvelope env(S.live);
     bool any = false;
     for (const Near& n : near(corner[0])) {
       const size_t s = static_cast<size_t>(n.site);
       if (S.in2[s] != stamp) continue;
       any = true;
-      const Eigen::Vector3d psi = Eigen::Vector3d(n.d2, S.d1[s], S.d2[s]).array() - h[n.site];
-      envelope = std::min(envelope, psi.maxCoeff());
-      if (psi.minCoeff() <= envelope) live.emplace_back(n.site, psi);
+      env.offer(n.site, Eigen::Vector3d(n.d2, S.d1[s], S.d2[s]).array() - h[n.site]);
     }
-    live.erase(std::remove_if(live.begin(), live.end(), [envelope](const auto& c) { return c.second.minCoeff() > envelope; }),
-               live.end());
+    envelope = env.finish();
     return any;
   }
 
