@@ -56,24 +56,17 @@ Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& verte
   using Edge = std::pair<RT::Vertex_handle, RT::Vertex_handle>;
   // Whether edge e is still there, between two finite faces, with the vertex across from
   // face f strictly inside f's power circle (f, i: the edge as face and opposite index).
-  auto irregular = [&](RT::Face_handle f, int i) {
+  auto violates = [&](const Edge& e, RT::Face_handle& f, int& i) {
+    if (!rt.is_edge(e.first, e.second, f, i)) return false;
     const RT::Face_handle g = f->neighbor(i);
     if (rt.is_infinite(f) || rt.is_infinite(g)) return false;  // a hull edge stays
     return power(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point(),
                  g->vertex(rt.mirror_index(f, i))->point()) == CGAL::ON_POSITIVE_SIDE;
   };
-  auto violates = [&](const Edge& e, RT::Face_handle& f, int& i) {
-    return rt.is_edge(e.first, e.second, f, i) && irregular(f, i);
-  };
   std::vector<Edge> queue, stuck, flipped;
-  // The first pass reads each edge where the iterator stands (face and index at hand), and
-  // queues only the edges that are not locally regular: a Newton step leaves most edges
-  // regular, and finding each edge again by its vertices (is_edge, a walk around one of
-  // them) cost more than its power test. An edge made irregular later is one of the four
-  // sides of a flipped quadrilateral, which the flip queues.
+  queue.reserve(3 * static_cast<size_t>(n));
   for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
-    if (irregular(e->first, e->second))
-      queue.emplace_back(e->first->vertex(RT::cw(e->second)), e->first->vertex(RT::ccw(e->second)));
+    queue.emplace_back(e->first->vertex(RT::cw(e->second)), e->first->vertex(RT::ccw(e->second)));
   const size_t max_flips = 20 * static_cast<size_t>(n) + 1000;
   bool ok = true, hidden = false;
   while (ok && !queue.empty()) {
