@@ -110,11 +110,12 @@ Polygon clip(const Polygon& poly, const Eigen::Vector3d& g, int site) {
 // One thread's reused buffers for Transport::face: per site, the stamp of the last face whose
 // corner 1 (in1) and corners 1 and 2 (in2) keep it, with its squared distances there; the
 // face's live sites.
+using LiveSites = std::vector<std::pair<int, Eigen::Vector3d>>;  // site, psi = d^2 - h at the corners
 struct FaceScratch {
   std::vector<uint64_t> in1, in2;
   std::vector<float> d1, d2;
   uint64_t stamp = 0;
-  std::vector<std::pair<int, Eigen::Vector3d>> live;
+  LiveSites live;
 };
 
 class Transport {
@@ -396,9 +397,9 @@ class Transport {
   // corner is at most E. E only falls along the pass, so a live site is at most E where it
   // is offered: each is kept then, and the ones above the final E are dropped at the end.
   struct LowerEnvelope {
-    std::vector<std::pair<int, Eigen::Vector3d>>& live;
+    LiveSites& live;
     double value = std::numeric_limits<double>::infinity();
-    explicit LowerEnvelope(std::vector<std::pair<int, Eigen::Vector3d>>& out) : live(out) { live.clear(); }
+    explicit LowerEnvelope(LiveSites& out) : live(out) { live.clear(); }
     void offer(int site, const Eigen::Vector3d& psi) {
       value = std::min(value, psi.maxCoeff());
       if (psi.minCoeff() <= value) live.emplace_back(site, psi);
@@ -416,7 +417,7 @@ class Transport {
   // at all three corners, the candidates; sites above it nowhere win): from the corners' short
   // lists (LowerEnvelope). False where a corner's list is full.
   bool live_from_short_lists(const int corner[3], const Eigen::VectorXd& h, const LowLists& low,
-                             std::vector<std::pair<int, Eigen::Vector3d>>& live, double& envelope) const {
+                             LiveSites& live, double& envelope) const {
     const Near* list[3];
     int size[3], at[3] = {0, 0, 0};
     for (int k = 0; k < 3; ++k) {
