@@ -1,15 +1,48 @@
 #include "process.hpp"
 
+#include <dlfcn.h>
 #include <malloc.h>
 #include <unistd.h>
 
 #include <cstdlib>
+#include <cstring>
 #include <string>
 
 namespace brenier::process {
 
+namespace {
+
+// The OpenBLAS kernels this CPU can run, by the instruction sets its code paths need
+// (OpenBLAS's SkylakeX kernels use AVX-512 F/BW/VL/DQ, its Haswell kernels AVX2 and FMA);
+// null when it has neither. __builtin_cpu_supports also asks whether the OS saves the
+// registers these use.
+const char* kernels_this_cpu_runs() {
+  __builtin_cpu_init();
+  if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+      __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512dq"))
+    return "SkylakeX";
+  if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma")) return "Haswell";
+  return nullptr;
+}
+
+}  // namespace
+
+bool choose_blas_kernels() {
+  if (std::getenv("OPENBLAS_CORETYPE") != nullptr) return false;  // the user's choice stands
+  // openblas_get_corename is OpenBLAS's own; another BLAS behind libblas.so.3 has none.
+  using CoreName = char* (*)();
+  auto core_name = reinterpret_cast<CoreName>(::dlsym(RTLD_DEFAULT, "openblas_get_corename"));
+  if (core_name == nullptr) return false;
+  const char* loaded = core_name();
+  if (loaded == nullptr || ::strcasecmp(loaded, "prescott") != 0) return false;
+  const char* runnable = kernels_this_cpu_runs();
+  if (runnable == nullptr) return false;  // an old CPU: Prescott is right for it
+  ::setenv("OPENBLAS_CORETYPE", runnable, 1);
+  return true;
+}
+
 void reexec_with_runtime_settings(char** argv) {
-  bool changed = false;
+  bool changed = choose_blas_kernels();
   if (std::getenv("OMP_WAIT_POLICY") == nullptr) {
     ::setenv("OMP_WAIT_POLICY", "passive", 1);
     // Our BLAS calls run on one thread each (single_threaded_blas): OpenBLAS's own pool, which

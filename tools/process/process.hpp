@@ -5,6 +5,16 @@
 
 namespace brenier::process {
 
+/// OpenBLAS picks its kernels when it is loaded, before main, by the CPU's model number. A
+/// model it does not know, such as a virtual machine's generic "Intel(R) Xeon(R) Processor",
+/// gets the Prescott (SSE3) kernels even where AVX-512 is there. Those are 1.5-2x slower in
+/// CHOLMOD's supernodal factorizations, and they round differently: on such a VM man's sphere
+/// map kept 3 folded faces, and had none with the SkylakeX kernels (bench/RESULTS.md).
+/// When OpenBLAS is loaded with its Prescott kernels, OPENBLAS_CORETYPE is unset and the CPU
+/// has AVX-512 (or AVX2 and FMA), this sets OPENBLAS_CORETYPE to SkylakeX (or Haswell) and
+/// returns true: the program must then re-execute itself for OpenBLAS to read it.
+bool choose_blas_kernels();
+
 /// Called first in main(): sets the runtime's start-up settings that were not set and
 /// re-executes the program once for them. Unless OMP_WAIT_POLICY is set, sets it to passive
 /// (libgomp reads it once, when it is loaded, before main). Idle OpenMP threads then sleep
@@ -14,7 +24,8 @@ namespace brenier::process {
 /// fails.
 /// It also sets OPENBLAS_NUM_THREADS=1 unless set, and asks glibc's malloc for transparent
 /// huge pages (GLIBC_TUNABLES glibc.malloc.hugetlb=1) unless that tunable is set (see
-/// process.cpp); it re-executes when either was missing.
+/// process.cpp), and OPENBLAS_CORETYPE where choose_blas_kernels() says so; it re-executes
+/// when any of these was missing.
 void reexec_with_runtime_settings(char** argv);
 
 /// Called first in main(): glibc's malloc keeps up to 32 MB freed at the top of each arena
