@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdio>
@@ -15,6 +16,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "common/check.hpp"
 #include "common/error.hpp"
 #include "common/hash.hpp"
 #include "common/version.hpp"
@@ -56,7 +58,7 @@ std::string ShapeOptions::fingerprint() const {
                 quadrature.rings, quadrature.angles);
   std::string out = buf;
   if (sphere) {  // (the disk's keys stay as they were)
-    std::snprintf(buf, sizeof buf, ";merge=%.17g", merge_radius);
+    std::snprintf(buf, sizeof buf, ";merge=%.17g;cap=%.17g", merge_radius, density_cap);
     out += buf;
   }
   return out;
@@ -73,6 +75,7 @@ std::string shape_key(const mesh::TriMesh& m, const ShapeOptions& opt) {
 }
 
 namespace {
+
 
 void check_transport_tolerances(const ShapeOptions& opt) {
   if (!(opt.transport_tolerance > 0) || !(opt.omt_tolerance > 0)) invalid("transport tolerances must be positive");
@@ -203,7 +206,11 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
   for (int f = 0; f < m.num_faces(); ++f)
     if (!(image[f] > 0))
       fail(ErrorCode::kNotConverged, s.name + ": face " + std::to_string(f) + " has no area in the sphere image");
-  s.density = area.cwiseQuotient(image);
+  Eigen::VectorXd mass = area;
+  const DensityCap capped = cap_density(m.F, X, image, opt.density_cap, mass);
+  s.density_shift = capped.shift;
+  s.capped_mass = capped.moved;
+  s.density = mass.cwiseQuotient(image);
   attach_surface(s);
   Eigen::VectorXd start;
   s.quantization = quantization_cost(s, transport_cost_sphere(s, s, Eigen::Vector3d::Ones(), progress, start));
@@ -211,6 +218,76 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
 }
 
 }  // namespace
+
+// cap_density (shape.hpp): the sets over the cap are found by a walk across edges, and the
+// rings around each by breadth-first search from it.
+DensityCap cap_density(const mesh::Faces& F, const mesh::Vertices& X, const Eigen::VectorXd& image, double cap,
+                       Eigen::VectorXd& mass) {
+  DensityCap out;
+  const int nf = static_cast<int>(F.rows());
+  auto room = [&](int f) { return cap * image[f] - mass[f]; };
+  std::vector<int> heavy;
+  for (int f = 0; f < nf; ++f)
+    if (room(f) < 0) heavy.push_back(f);
+  if (heavy.empty() || !(cap > 0)) return out;
+  // Faces across each edge.
+  std::unordered_map<long long, int> first;
+  std::vector<std::array<int, 3>> across(nf, {-1, -1, -1});
+  for (int f = 0; f < nf; ++f)
+    for (int k = 0; k < 3; ++k) {
+      const long long a = F(f, k), b = F(f, (k + 1) % 3);
+      const long long key = std::min(a, b) * (1LL << 32) + std::max(a, b);
+      auto [it, fresh] = first.emplace(key, f * 3 + k);
+      if (!fresh) {
+        across[f][k] = it->second / 3;
+        across[it->second / 3][it->second % 3] = f;
+      }
+    }
+  std::vector<int> seen(nf, -1);  // the set (its first face) that visited the face
+  double total = mass.sum();
+  for (int h0 : heavy) {
+    if (seen[h0] >= 0) continue;
+    // The connected set of faces over the cap around h0, its excess taken off.
+    std::vector<int> set{h0}, ring;
+    seen[h0] = h0;
+    double excess = 0;
+    for (size_t i = 0; i < set.size(); ++i) {
+      const int f = set[i];
+      excess += -room(f);
+      mass[f] = cap * image[f];
+      for (int g : across[f])
+        if (g >= 0 && seen[g] != h0 && room(g) < 0) seen[g] = h0, set.push_back(g);
+    }
+    out.moved += excess;
+    const Eigen::RowVector3d c = X.row(F(h0, 0));
+    double r_set = 0, r_rings = 0;
+    for (int f : set)
+      for (int k = 0; k < 3; ++k) r_set = std::max(r_set, (X.row(F(f, k)) - c).norm());
+    // Rings outward, each filled to the cap until the excess is placed.
+    std::vector<int> front = set;
+    while (excess > 0 && !front.empty()) {
+      ring.clear();
+      for (int f : front)
+        for (int g : across[f])
+          if (g >= 0 && seen[g] != h0) seen[g] = h0, ring.push_back(g);
+      double space = 0;
+      for (int g : ring) space += std::max(0.0, room(g));
+      const double share = space > excess ? excess / space : 1;
+      for (int g : ring) {
+        if (room(g) <= 0) continue;
+        mass[g] += share * room(g);
+        for (int k = 0; k < 3; ++k) r_rings = std::max(r_rings, (X.row(F(g, k)) - c).norm());
+      }
+      excess -= share * space;
+      if (share < 1) excess = 0;
+      front.swap(ring);
+    }
+    BRENIER_CHECK(excess <= 1e-12 * total, "the density cap found no room for a peak's mass");
+    out.shift = std::max(out.shift, r_set + r_rings);
+  }
+  out.moved /= total;
+  return out;
+}
 
 omt::Points3 merge_sphere_sites(const omt::Points3& X, double radius, std::vector<int>& site_of) {
   // Below 1e-15 the grid's cell indices (coordinates / radius) would leave a long long; no
@@ -342,7 +419,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
 
 namespace {
 
-constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '7'};
+constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '8'};
 
 struct Writer {
   std::ostream& os;
@@ -417,6 +494,8 @@ void save_shape(const Shape& s, const std::string& path) {
     w.pod(s.cost_tolerance);
     w.pod(s.merged_vertices);
     w.pod(s.merge_shift);
+    w.pod(s.density_shift);
+    w.pod(s.capped_mass);
     w.mat(s.sites);
     w.mat(s.mass);
     w.mat(s.tri);
@@ -461,6 +540,8 @@ bool load_shape(const std::string& path, Shape& out) {
   r.pod(s.cost_tolerance);
   r.pod(s.merged_vertices);
   r.pod(s.merge_shift);
+  r.pod(s.density_shift);
+  r.pod(s.capped_mass);
   r.mat(s.sites);
   r.mat(s.mass);
   r.mat(s.tri);

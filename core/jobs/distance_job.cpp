@@ -115,6 +115,8 @@ nlohmann::json shape_json(const distance::Shape& x) {
   if (x.sphere) {
     j["merged_vertices"] = x.merged_vertices;
     j["merge_shift"] = x.merge_shift;
+    j["density_shift"] = x.density_shift;
+    j["capped_mass"] = x.capped_mass;
   }
   return j;
 }
@@ -164,6 +166,12 @@ DistanceOutcome run_distance(const distance::ShapeInput& a, const distance::Shap
     out.report["measure_merge"] = {{"radius", a.options.merge_radius},
                                    {"merged_vertices", {s[0].merged_vertices, s[1].merged_vertices}},
                                    {"w2_bound", std::max(s[0].merge_shift, s[1].merge_shift)}};
+  if (s[0].sphere && request.method == distance::Method::kWasserstein)
+    // What the cap on the source densities (ShapeOptions::density_cap) guarantees: each
+    // transport's W2 is within the farther shift of the one from the uncapped density.
+    out.report["density_cap"] = {{"cap", a.options.density_cap},
+                                 {"capped_mass", {s[0].capped_mass, s[1].capped_mass}},
+                                 {"w2_bound", std::max(s[0].density_shift, s[1].density_shift)}};
   out.a = std::move(s[0]);
   out.b = std::move(s[1]);
   return out;

@@ -17,6 +17,7 @@
 #include "distance/distance.hpp"
 #include "distance/matrix.hpp"
 #include "distance/shape.hpp"
+#include "mesh/geometry.hpp"
 #include "mesh/shapes.hpp"
 #include "omt/omt.hpp"
 
@@ -366,6 +367,36 @@ TEST(Distance, MergedSphereSitesAreRadiusApartAndEveryVertexWithinRadiusOfItsSit
   EXPECT_EQ(distance::merge_sphere_sites(X, 0, site_of).rows(), X.rows());
   EXPECT_ERROR(distance::merge_sphere_sites(X, -1, site_of), ErrorCode::kInvalidArgument, "merge radius");
   EXPECT_ERROR(distance::merge_sphere_sites(X, 1e-300, site_of), ErrorCode::kInvalidArgument, "merge radius");
+}
+
+TEST(Distance, TheDensityCapSpreadsAPeaksExcessOverTheRingAroundIt) {
+  // The octahedron's eight faces, each of image area a: face 0 (corners +x, +y, +z) carries
+  // 3 cap a, the others 0.1 cap a. Its excess 2 cap a goes to the three faces across its
+  // edges, which have 0.9 cap a of room each (2.7 cap a): each gets 2 / 2.7 of its room.
+  // The bound: from face 0's first corner (+x), its own corners lie within sqrt 2, the
+  // ring's within 2 (-x).
+  mesh::Vertices X(6, 3);
+  X << 1, 0, 0, -1, 0, 0, 0, 1, 0, 0, -1, 0, 0, 0, 1, 0, 0, -1;
+  mesh::Faces F(8, 3);
+  F << 0, 2, 4, 2, 1, 4, 1, 3, 4, 3, 0, 4, 2, 0, 5, 1, 2, 5, 3, 1, 5, 0, 3, 5;
+  const Eigen::VectorXd image = mesh::face_areas(F, X);
+  const double a = image[0], cap = 10;
+  Eigen::VectorXd mass = Eigen::VectorXd::Constant(8, 0.1 * cap * a);
+  mass[0] = 3 * cap * a;
+  const double total = mass.sum();
+  const distance::DensityCap r = distance::cap_density(F, X, image, cap, mass);
+  EXPECT_NEAR(mass.sum(), total, 1e-12 * total);
+  EXPECT_NEAR(mass[0], cap * a, 1e-12);
+  for (int f : {1, 3, 4}) EXPECT_NEAR(mass[f], (0.1 + 0.9 * 2 / 2.7) * cap * a, 1e-12) << f;  // across face 0's edges
+  for (int f : {2, 5, 6, 7}) EXPECT_NEAR(mass[f], 0.1 * cap * a, 1e-12) << f;
+  EXPECT_NEAR(r.moved, 2 * cap * a / total, 1e-12);
+  EXPECT_NEAR(r.shift, std::sqrt(2.0) + 2, 1e-12);
+  // Nothing over the cap: nothing moves.
+  Eigen::VectorXd flat = Eigen::VectorXd::Constant(8, cap * a);
+  const distance::DensityCap none = distance::cap_density(F, X, image, cap, flat);
+  EXPECT_EQ(none.moved, 0.0);
+  EXPECT_EQ(none.shift, 0.0);
+  EXPECT_TRUE((flat.array() == cap * a).all());
 }
 
 TEST(Distance, SphereShapesWithMergedSitesTransportAndReadBackExactly) {
