@@ -110,6 +110,9 @@ struct Shape {
   /// Sphere: the farthest (chordal) any mass of the source density was moved by the cap of
   /// ShapeOptions::density_cap (0: nothing was over it), and the fraction of the mass moved.
   double density_shift = 0, capped_mass = 0;
+  /// Sphere: the merge radius used: ShapeOptions::merge_radius, or up to 1e-3 where the
+  /// transport onto the vertex measure needed more (transport_onto_vertices in shape.cpp).
+  double merge_radius = 0;
   // The OMT map of Def. 2.24 from the uniform disk onto (sites, mass) (Alg. 2): heights h
   // and, at each quadrature point, the site of its cell, as complex numbers (ring by ring).
   Eigen::VectorXd h;

@@ -115,6 +115,7 @@ nlohmann::json shape_json(const distance::Shape& x) {
   if (x.sphere) {
     j["merged_vertices"] = x.merged_vertices;
     j["merge_shift"] = x.merge_shift;
+    j["merge_radius"] = x.merge_radius;
     j["density_shift"] = x.density_shift;
     j["capped_mass"] = x.capped_mass;
   }
@@ -163,7 +164,10 @@ DistanceOutcome run_distance(const distance::ShapeInput& a, const distance::Shap
   if (s[0].sphere)
     // What the merge of close vertex images (ShapeOptions::merge_radius) guarantees: each
     // transport's W2 is within the farther shift of the one onto the unmerged measure.
-    out.report["measure_merge"] = {{"radius", a.options.merge_radius},
+    // The radius is the larger of the two shapes' (each starts at ShapeOptions::merge_radius
+    // and grows where its transport needs it).
+    out.report["measure_merge"] = {{"radius", std::max(s[0].merge_radius, s[1].merge_radius)},
+                                   {"radii", {s[0].merge_radius, s[1].merge_radius}},
                                    {"merged_vertices", {s[0].merged_vertices, s[1].merged_vertices}},
                                    {"w2_bound", std::max(s[0].merge_shift, s[1].merge_shift)}};
   if (s[0].sphere && request.method == distance::Method::kWasserstein)

@@ -282,6 +282,14 @@ merge = (j or {}).get("measure_merge", {})
 check(j and j["converged"] and 0 < j["distance"] < 2 and merge.get("merged_vertices", [0])[0] > 0
       and 0 < merge.get("w2_bound", 1) <= merge.get("radius", 0),
       f"sphere: bull (crowded sphere map) against blobby: {j and {k: j[k] for k in ('distance', 'measure_merge')}}")
+# camel keeps clusters of images 1e-5..1e-4 apart, where the transport at the default merge
+# radius (1e-5) cannot take a step: the radius grows tenfold (up to 1e-3) and the JSON says
+# which it used.
+j = distance(mesh("camel"), mesh("blobby"), "--domain", "sphere", "--method", "omt-linear")
+merge = (j or {}).get("measure_merge", {})
+check(j and j["converged"] and 0 < j["distance"] < 3 and 1e-5 < merge.get("radii", [0])[0] <= 1e-3
+      and merge.get("radii", [0, 0])[1] == 1e-5 and 0 < merge.get("w2_bound", 1) <= merge.get("radius", 0),
+      f"sphere: camel (clustered sphere map) against blobby: {j and {k: j[k] for k in ('distance', 'measure_merge')}}")
 # The exact distance from bull's density: its legs' images carry densities up to 1e22, so
 # the peaks are capped and the JSON states how far that moved the measure (issue 23).
 j = distance(mesh("bull"), mesh("blobby"), "--domain", "sphere")
