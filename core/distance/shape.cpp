@@ -22,6 +22,7 @@
 #include "common/version.hpp"
 #include "distance/distance.hpp"
 #include "mesh/geometry.hpp"
+#include "mesh/topology.hpp"
 #include "omt/area_preserving.hpp"
 
 namespace brenier::distance {
@@ -76,7 +77,6 @@ std::string shape_key(const mesh::TriMesh& m, const ShapeOptions& opt) {
 
 namespace {
 
-
 void check_transport_tolerances(const ShapeOptions& opt) {
   if (!(opt.transport_tolerance > 0) || !(opt.omt_tolerance > 0)) invalid("transport tolerances must be positive");
   if (!(opt.cost_tolerance >= 0) || !std::isfinite(opt.cost_tolerance)) invalid("the cost tolerance must be 0 or positive");
@@ -110,6 +110,7 @@ struct SphereTransport {
   std::vector<int> site_of;   // each vertex's site
   omt::Points sites;          // the sites in the stereographic plane from the pole
   Eigen::Matrix3d R;          // rows R x: the pole at +z
+  Eigen::VectorXd mass;       // each site's: the masses of its vertices
   omt::OmtResult omt;
   double radius = 0;          // the merge radius used
 };
@@ -132,8 +133,8 @@ SphereTransport transport_onto_vertices(const mesh::Vertices& X, const Eigen::Ve
   t.R = Eigen::Quaterniond::FromTwoVectors(pole, Eigen::Vector3d::UnitZ()).toRotationMatrix();
   for (t.radius = opt.merge_radius;; t.radius *= 10) {
     t.merged = merge_sphere_sites(X, t.radius, t.site_of);
-    Eigen::VectorXd mass = Eigen::VectorXd::Zero(t.merged.rows());
-    for (Eigen::Index v = 0; v < X.rows(); ++v) mass[t.site_of[v]] += vertex_mass[v];
+    t.mass = Eigen::VectorXd::Zero(t.merged.rows());
+    for (Eigen::Index v = 0; v < X.rows(); ++v) t.mass[t.site_of[v]] += vertex_mass[v];
     const omt::Points3 Y = t.merged * t.R.transpose();
     t.sites.resize(Y.rows(), 2);
     double nearest = 2;
@@ -146,7 +147,7 @@ SphereTransport transport_onto_vertices(const mesh::Vertices& X, const Eigen::Ve
     omt::OmtOptions oopt;
     oopt.tolerance = opt.omt_tolerance;
     oopt.progress = progress;
-    t.omt = omt::solve_omt(omt::Domain::stereographic_sphere(), t.sites, mass, oopt);
+    t.omt = omt::solve_omt(omt::Domain::stereographic_sphere(), t.sites, t.mass, oopt);
     if (t.omt.converged) return t;
     if (t.radius == 0 || t.radius * 10 > kLargestRadius * (1 + 1e-9)) break;
   }
@@ -196,18 +197,15 @@ Shape prepare_sphere(const mesh::TriMesh& m, const ShapeOptions& opt, Shape s, c
   }
   E.col(2) = E.col(0).cross(E.col(1));
   const mesh::Vertices X = c.positions * E;  // rows E^T x: coordinates in the frame
-  const Eigen::VectorXd vertex_mass = s.mass;
-  const SphereTransport t = transport_onto_vertices(X, vertex_mass, opt, progress, s.name);
+  const SphereTransport t = transport_onto_vertices(X, s.mass, opt, progress, s.name);
   const omt::Points3& merged = t.merged;
   const omt::Points& sites = t.sites;
   const omt::OmtResult& r = t.omt;
   const Eigen::Matrix3d& R = t.R;
   s.merge_radius = t.radius;
-  s.mass = Eigen::VectorXd::Zero(merged.rows());
-  for (int v = 0; v < m.num_vertices(); ++v) {
-    s.mass[t.site_of[v]] += vertex_mass[v];
+  s.mass = t.mass;
+  for (int v = 0; v < m.num_vertices(); ++v)
     s.merge_shift = std::max(s.merge_shift, (X.row(v) - merged.row(t.site_of[v])).norm());
-  }
   s.merged_vertices = m.num_vertices() - static_cast<int>(merged.rows());
   s.normalization = c.normalization + ", principal frame of the pushed-forward area (eigenvalues " +
                     std::to_string(eig.eigenvalues()[2]) + ", " + std::to_string(eig.eigenvalues()[1]) + ", " +
@@ -260,18 +258,19 @@ DensityCap cap_density(const mesh::Faces& F, const mesh::Vertices& X, const Eige
   for (int f = 0; f < nf; ++f)
     if (room(f) < 0) heavy.push_back(f);
   if (heavy.empty() || !(cap > 0)) return out;
-  // Faces across each edge.
-  std::unordered_map<long long, int> first;
+  // across[f][k]: the face across edge (F(f, k), F(f, k + 1)), from the sorted edge uses.
   std::vector<std::array<int, 3>> across(nf, {-1, -1, -1});
-  for (int f = 0; f < nf; ++f)
-    for (int k = 0; k < 3; ++k) {
-      const long long a = F(f, k), b = F(f, (k + 1) % 3);
-      const long long key = std::min(a, b) * (1LL << 32) + std::max(a, b);
-      auto [it, fresh] = first.emplace(key, f * 3 + k);
-      if (!fresh) {
-        across[f][k] = it->second / 3;
-        across[it->second / 3][it->second % 3] = f;
-      }
+  auto slot = [&](int f, int a, int b) {
+    for (int k = 0; k < 3; ++k)
+      if (std::minmax(F(f, k), F(f, (k + 1) % 3)) == std::minmax(a, b)) return k;
+    return 0;
+  };
+  const std::vector<mesh::EdgeUse> uses = mesh::sorted_edge_uses(F);
+  for (size_t k = 0; k + 1 < uses.size(); ++k)
+    if (uses[k].a == uses[k + 1].a && uses[k].b == uses[k + 1].b) {
+      const int f = uses[k].face, g = uses[k + 1].face;
+      across[f][slot(f, uses[k].a, uses[k].b)] = g;
+      across[g][slot(g, uses[k].a, uses[k].b)] = f;
     }
   std::vector<int> seen(nf, -1);  // the set (its first face) that visited the face
   double total = mass.sum();
