@@ -17,6 +17,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <Eigen/Geometry>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -25,6 +26,7 @@
 #include "mesh/shapes.hpp"
 #include "mesh/topology.hpp"
 #include "mesh/validate.hpp"
+#include "register/correspondence.hpp"
 #include "register/domain_match.hpp"
 #include "register/evaluation.hpp"
 
@@ -79,8 +81,10 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
   // truth-flips: the same flip test on the true correspondence itself (each source vertex at
   // its true place): chords of the source's faces laid on the remeshed target turn against
   // its normals where the surface curls within a face, with no fold of any map.
-  std::printf("%-28s %-8s %-16s %7s %8s %8s %8s %6s %6s %11s %7s %s\n", "mesh", "deform", "route", "V", "median", "mean", "p90",
-              "folds", "flips", "truth-flips", "sec", "start");
+  // chart-flips: faces turned over on the target surface itself, read in the target's
+  // conformal map (registration::chart_flipped_faces), for the registration / for the truth.
+  std::printf("%-28s %-8s %-16s %7s %8s %8s %8s %6s %6s %11s %11s %7s %s\n", "mesh", "deform", "route", "V", "median", "mean",
+              "p90", "folds", "flips", "truth-flips", "chart-flips", "sec", "start");
   for (const std::string& path : meshes) {
     mesh::CleanMesh cm = mesh::load_mesh(path);
     mesh::require_valid(cm, path);
@@ -93,6 +97,14 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
       for (const auto& s : p.truth) truth_faces.push_back(s.face);
       const int truth_flips = registration::flipped_morph_faces(p.source.F, registration::positions(p.target, p.truth),
                                                                 p.target, truth_faces);
+      if (b.mesh.F != p.target.F) throw std::runtime_error(path + ": cleaning renumbered the target's faces");
+      jobs::MapRequest chart_request;
+      chart_request.domain = sphere ? jobs::Domain::kSphere : jobs::Domain::kDisk;
+      const jobs::MapOutcome chart = jobs::run_map(b, "target", chart_request);
+      auto chart_flips = [&](const std::vector<registration::SurfacePoint>& points) {
+        return registration::chart_flipped_faces(p.source.F, points, p.target.F, chart.positions, sphere);
+      };
+      const int truth_chart_flips = chart_flips(p.truth);
       for (Route& route : routes) {
         const auto t0 = std::chrono::steady_clock::now();
         try {
@@ -106,10 +118,11 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
           route.all_errors.insert(route.all_errors.end(), e.begin(), e.end());
           double mean = 0;
           for (double x : e) mean += x / static_cast<double>(e.size());
-          std::printf("%-28s %-8s %-16s %7d %8.4f %8.4f %8.4f %6d %6d %11d %7.2f %s\n", path.substr(path.rfind('/') + 1).c_str(),
+          const std::string chart_column = std::to_string(chart_flips(found)) + "/" + std::to_string(truth_chart_flips);
+          std::printf("%-28s %-8s %-16s %7d %8.4f %8.4f %8.4f %6d %6d %11d %11s %7.2f %s\n", path.substr(path.rfind('/') + 1).c_str(),
                       registration::deformation_name(d), jobs::map_method_name(route.method), a.mesh.num_vertices(),
                       quantile(e, 0.5), mean, quantile(e, 0.9), out.report["domain_folded_faces"].get<int>(),
-                      out.report["morph_flipped_faces"].get<int>(), truth_flips, sec,
+                      out.report["morph_flipped_faces"].get<int>(), truth_flips, chart_column.c_str(), sec,
                       out.report["match"]["start"].get<std::string>().c_str());
         } catch (const std::exception& e) {
           std::printf("%-28s %-8s %-16s failed: %s\n", path.c_str(), registration::deformation_name(d),

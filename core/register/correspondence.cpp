@@ -9,6 +9,8 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 
+#include "common/error.hpp"
+
 namespace brenier::registration {
 
 namespace {
@@ -109,6 +111,34 @@ int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const
     }
     flipped += against;
   }
+  return flipped;
+}
+
+int chart_flipped_faces(const mesh::Faces& F, const std::vector<SurfacePoint>& points, const mesh::Faces& target_F,
+                        const mesh::Vertices& chart, bool sphere) {
+  if (chart.rows() == 0 || target_F.rows() == 0) invalid("the chart has no vertices or no faces");
+  for (const SurfacePoint& p : points)
+    if (p.face < 0 || p.face >= target_F.rows()) invalid("a point lies on a face the chart does not have");
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    for (int k = 0; k < 3; ++k)
+      if (F(f, k) < 0 || static_cast<size_t>(F(f, k)) >= points.size()) invalid("a face has a corner without a point");
+  // Signed area in the chart: on the plane the z of the edges' cross product; on the sphere
+  // det(a, b, c), the orientation seen from outside (the triangles are far below a hemisphere).
+  auto orientation = [&](const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c) {
+    return sphere ? a.dot(b.cross(c)) : (b - a).cross(c - a).z();
+  };
+  auto at = [&](Eigen::Index v) -> Eigen::Vector3d { return chart.row(v).transpose(); };
+  double reference = 0;
+  for (Eigen::Index t = 0; t < target_F.rows(); ++t)
+    reference += orientation(at(target_F(t, 0)), at(target_F(t, 1)), at(target_F(t, 2)));
+  if (!(reference != 0)) invalid("the chart gives the target's faces no orientation");
+  auto place = [&](int v) -> Eigen::Vector3d {
+    const SurfacePoint& p = points[static_cast<size_t>(v)];
+    return p.bary[0] * at(target_F(p.face, 0)) + p.bary[1] * at(target_F(p.face, 1)) + p.bary[2] * at(target_F(p.face, 2));
+  };
+  int flipped = 0;
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    flipped += orientation(place(F(f, 0)), place(F(f, 1)), place(F(f, 2))) * reference < 0;
   return flipped;
 }
 

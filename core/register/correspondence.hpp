@@ -34,4 +34,17 @@ mesh::Vertices positions(const mesh::TriMesh& mesh, const std::vector<SurfacePoi
 int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const mesh::TriMesh& target,
                         const std::vector<int>& corner_face = {});
 
+/// Faces of a correspondence that turn over on the target surface itself, read in a chart of
+/// it: `chart` gives the target's vertices (target_F over them) under a bijective map onto the
+/// disk (z = 0) or the unit sphere, such as the target's conformal map. Each source face's
+/// corners, `points` on the target, go into the chart by their barycentric coordinates, and the
+/// face counts where its orientation there is opposite to the orientation of the target's own
+/// faces in the chart. A map of the source surface onto the target that is piecewise linear
+/// in this chart is a bijection exactly where no face counts (and its boundary goes round
+/// once), so unlike flipped_morph_faces this test does not count chords of a face that
+/// span a curl of the target: it is intrinsic, and a correspondence with no fold, such as a
+/// smooth deformation's true one, gives zero whatever the target's curvature.
+int chart_flipped_faces(const mesh::Faces& F, const std::vector<SurfacePoint>& points, const mesh::Faces& target_F,
+                        const mesh::Vertices& chart, bool sphere);
+
 }  // namespace brenier::registration

@@ -4,6 +4,7 @@
 // disk, whose maps are the identity up to a turn); and the refusals.
 #include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <complex>
 #include <filesystem>
@@ -267,6 +268,35 @@ TEST(Correspondence, LocatesPointsInThePlaneAndOnTheSphere) {
     EXPECT_LT(Q.row(i).normalized().cross(P.row(i)).norm(), 1e-9);
     EXPECT_GE(on[static_cast<size_t>(i)].bary.minCoeff(), 0);
   }
+}
+
+// chart_flipped_faces: a correspondence placed exactly (every vertex on itself) turns nothing
+// over in any orientation-preserving chart nor in a mirrored one; two neighbours swapped turn
+// over faces on the plane and on the sphere.
+TEST(Correspondence, ChartFlipsCountFacesTurnedOverInTheTargetsChartOnly) {
+  const mesh::TriMesh d = mesh::make_disk(6);
+  const std::vector<SurfacePoint> self = locate(d.F, d.V, d.V, false);
+  const Eigen::Matrix3d turn = Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  EXPECT_EQ(chart_flipped_faces(d.F, self, d.F, (2.5 * d.V * turn.transpose()).eval(), false), 0);
+  mesh::Vertices mirrored = d.V;
+  mirrored.col(0) *= -1;
+  EXPECT_EQ(chart_flipped_faces(d.F, self, d.F, mirrored, false), 0);
+  auto swapped = [](std::vector<SurfacePoint> p, int a, int b) {
+    std::swap(p[static_cast<size_t>(a)], p[static_cast<size_t>(b)]);
+    return p;
+  };
+  // Two corners of one face swapped reverse that face and every face around the two.
+  const int a = d.F(0, 0), b = d.F(0, 1);
+  const int turned = chart_flipped_faces(d.F, swapped(self, a, b), d.F, d.V, false);
+  EXPECT_GE(turned, 1);
+  EXPECT_LT(turned, d.num_faces());
+  const mesh::TriMesh s = mesh::make_icosphere(3);
+  const std::vector<SurfacePoint> on = locate(s.F, s.V, s.V, true);
+  EXPECT_EQ(chart_flipped_faces(s.F, on, s.F, s.V, true), 0);
+  EXPECT_GE(chart_flipped_faces(s.F, swapped(on, s.F(5, 0), s.F(5, 2)), s.F, s.V, true), 1);
+  std::vector<SurfacePoint> off = self;
+  off[0].face = d.num_faces();
+  EXPECT_ERROR(chart_flipped_faces(d.F, off, d.F, d.V, false), ErrorCode::kInvalidArgument, "a face the chart does not have");
 }
 
 TEST(Register, AFlatDiskOntoARemeshedCopyOfItselfErrsOnlyAtTheRemeshingsResolution) {
