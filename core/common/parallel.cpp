@@ -107,6 +107,26 @@ int hardware_threads() {
   return cpus;
 }
 
+namespace {
+
+// The workers of the innermost parallel_for this thread runs a task of, and the OpenMP teams
+// this thread has taken: 1 plus the idle workers it has claimed.
+struct IdleWorkers {
+  std::atomic<int> unclaimed{0};
+};
+thread_local IdleWorkers* t_pool = nullptr;
+thread_local int t_teams = 1;
+
+}  // namespace
+
+void take_idle_workers() {
+  if (t_pool == nullptr) return;
+  if (const int spare = t_pool->unclaimed.exchange(0); spare > 0) {
+    t_teams += spare;
+    omp_set_num_threads(t_teams);
+  }
+}
+
 void parallel_for(int n, int workers, const std::function<void(int)>& task) {
   if (n <= 0) return;
   single_threaded_blas();
@@ -133,18 +153,27 @@ void parallel_for(int n, int workers, const std::function<void(int)>& task) {
       }
     }
   };
+  // Each worker runs its tasks with one OpenMP thread (take_idle_workers widens that), and
+  // when no task is left it offers itself to the tasks still running.
+  IdleWorkers idle;
+  auto lane = [&] {
+    IdleWorkers* const outer = t_pool;
+    const int outer_teams = t_teams;
+    t_pool = &idle;
+    t_teams = 1;
+    omp_set_num_threads(1);
+    work();
+    idle.unclaimed.fetch_add(1);
+    t_pool = outer;
+    t_teams = outer_teams;
+  };
   // The calling thread is one of the workers: one thread fewer to start, and its malloc
   // arena already holds pages (a fresh thread's arena faults in every page it touches).
   std::vector<std::thread> threads;
   const int count = std::min(workers, n);
-  for (int t = 1; t < count; ++t)
-    threads.emplace_back([&] {
-      omp_set_num_threads(1);  // this thread's OpenMP teams
-      work();
-    });
+  for (int t = 1; t < count; ++t) threads.emplace_back(lane);
   const int caller_teams = omp_get_max_threads();
-  omp_set_num_threads(1);
-  work();
+  lane();
   omp_set_num_threads(caller_teams);
   for (std::thread& t : threads) t.join();
   if (failure) std::rethrow_exception(failure);

@@ -14,6 +14,14 @@ namespace brenier {
 /// timing). workers <= 1 runs the tasks in order on the calling thread.
 void parallel_for(int n, int workers, const std::function<void(int)>& task);
 
+/// Inside a parallel_for task: adds the pool's workers that have run out of tasks since the
+/// last call to this thread's OpenMP teams (each idle worker to one task only), so that the
+/// last long task of a pool (the slow direction of a distance, the last pairs of a matrix)
+/// does not run on one core while the others wait. Long loops call it once per step
+/// (the transports' Newton iterations). Elsewhere a no-op. Results do not change: the
+/// OpenMP loops it widens sum in a fixed order.
+void take_idle_workers();
+
 /// Makes OpenBLAS (CHOLMOD's BLAS) run each call on the calling thread. We install its
 /// pthread build because that one locks its shared buffers: the serial build is not safe to
 /// call from two threads at once (concurrent factorizations corrupted each other, found as

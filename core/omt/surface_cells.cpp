@@ -12,6 +12,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <omp.h>
 #include <optional>
 #include <string>
 #include <utility>
@@ -414,6 +415,7 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
   };
   for (r.iterations = 0; r.iterations < opt.max_iterations && r.max_relative_error > opt.tolerance; ++r.iterations) {
     if (opt.abandon && (r.abandoned = opt.abandon(dual_at(h, r.cells)))) break;  // OmtOptions::abandon
+    take_idle_workers();  // the cores of a pool whose other tasks are done
     // The Jacobian of the masses (eq. 3.28 on the surface): the weighted graph Laplacian of
     // the cells' sides, dm_i/dh_j = -w_ij, dm_i/dh_i = sum_j w_ij; without the held height.
     const Eigen::VectorXd g = r.cells.mass - nu;
@@ -440,15 +442,29 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
     // iterations at t ~ 1/256) each then costs two or three sets of cells instead of nine,
     // and a run of full steps comes back within a few iterations.
     double t = std::min(1.0, 4 * last_t);
-    for (int halvings = 0; halvings < 30 && !accepted; ++halvings, t *= 0.5) {
-      const Eigen::VectorXd trial = h + t * dh;
-      SurfaceCells c = surface_power_cells(surface, sites, trial);
-      if (c.empty_cells > 0 || c.mass.minCoeff() < eps0) continue;
-      if (relative_norm(c.mass - nu) <= (1 - 0.5 * t) * gnorm || max_relative(c.mass) <= opt.tolerance) {
-        h = trial;
-        r.cells = std::move(c);
-        accepted = true;
-        last_t = t;
+    // Where the steps are damped and a second core is free (two OpenMP threads here: the
+    // solve runs alone, or take_idle_workers gave it a finished worker's core), the trials
+    // are set up two at a time, t and t/2, one per core, and judged in order as one by one:
+    // the same step is taken, and a damped iteration's usual two or three refused-or-taken
+    // trials cost one or two sets of cells' time instead of three.
+    const int round = last_t < 1 && omp_get_max_threads() >= 2 ? 2 : 1;
+    for (int halvings = 0; halvings < 30 && !accepted;) {
+      const int count = std::min(round, 30 - halvings);
+      Eigen::VectorXd trial[2];
+      SurfaceCells c[2];
+      for (int k = 0; k < count; ++k) trial[k] = h + (t * std::ldexp(1.0, -k)) * dh;
+      if (count == 2)
+        parallel_for(2, 2, [&](int k) { c[k] = surface_power_cells(surface, sites, trial[k]); });
+      else
+        c[0] = surface_power_cells(surface, sites, trial[0]);
+      for (int k = 0; k < count && !accepted; ++k, ++halvings, t *= 0.5) {
+        if (c[k].empty_cells > 0 || c[k].mass.minCoeff() < eps0) continue;
+        if (relative_norm(c[k].mass - nu) <= (1 - 0.5 * t) * gnorm || max_relative(c[k].mass) <= opt.tolerance) {
+          h = trial[k];
+          r.cells = std::move(c[k]);
+          accepted = true;
+          last_t = t;
+        }
       }
     }
     r.max_relative_error = max_relative(r.cells.mass);

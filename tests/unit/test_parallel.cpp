@@ -4,8 +4,14 @@
 #include <sched.h>
 #include <unistd.h>
 
+#include <omp.h>
+
+#include <atomic>
+#include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <thread>
+#include <vector>
 
 #include "common/parallel.hpp"
 
@@ -53,3 +59,35 @@ TEST(HardwareThreads, NeverMoreThanTheAffinityMask) {
 }
 
 }  // namespace
+
+// take_idle_workers: a task still running when the pool's other workers have run out of
+// tasks gets their cores as OpenMP threads, each idle worker going to one task only; outside
+// a pool nothing changes, and the caller's own OpenMP setting comes back after the pool.
+TEST(TakeIdleWorkers, TheLastTaskGetsTheFinishedWorkersCoresOnce) {
+  const int caller = omp_get_max_threads();
+  brenier::take_idle_workers();
+  EXPECT_EQ(omp_get_max_threads(), caller) << "outside a pool";
+  std::atomic<int> finished{0};
+  std::vector<int> teams(4, 0);
+  // Three quick tasks on three workers, then one long one: once the other three workers are
+  // idle, the long task's thread has 1 + 3 OpenMP threads.
+  brenier::parallel_for(4, 4, [&](int k) {
+    if (k != 3) {
+      teams[k] = omp_get_max_threads();
+      finished.fetch_add(1);
+      return;
+    }
+    EXPECT_EQ(omp_get_max_threads(), 1) << "a pool's task starts on one OpenMP thread";
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+    while (omp_get_max_threads() < 4 && std::chrono::steady_clock::now() < deadline) {
+      brenier::take_idle_workers();
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+    teams[k] = omp_get_max_threads();
+    brenier::take_idle_workers();  // nothing left to claim
+    EXPECT_EQ(omp_get_max_threads(), teams[k]);
+  });
+  EXPECT_EQ(teams[3], 4);
+  for (int k = 0; k < 3; ++k) EXPECT_EQ(teams[k], 1) << "task " << k;
+  EXPECT_EQ(omp_get_max_threads(), caller) << "the caller's setting is restored";
+}
