@@ -109,22 +109,17 @@ int hardware_threads() {
 
 namespace {
 
-// The workers of the innermost parallel_for this thread runs a task of, and the OpenMP teams
-// this thread has taken: 1 plus the idle workers it has claimed.
+// The workers of the innermost parallel_for this thread runs a task of.
 struct IdleWorkers {
   std::atomic<int> unclaimed{0};
 };
 thread_local IdleWorkers* t_pool = nullptr;
-thread_local int t_teams = 1;
 
 }  // namespace
 
 void take_idle_workers() {
   if (t_pool == nullptr) return;
-  if (const int spare = t_pool->unclaimed.exchange(0); spare > 0) {
-    t_teams += spare;
-    omp_set_num_threads(t_teams);
-  }
+  if (const int spare = t_pool->unclaimed.exchange(0); spare > 0) omp_set_num_threads(omp_get_max_threads() + spare);
 }
 
 void parallel_for(int n, int workers, const std::function<void(int)>& task) {
@@ -158,14 +153,11 @@ void parallel_for(int n, int workers, const std::function<void(int)>& task) {
   IdleWorkers idle;
   auto lane = [&] {
     IdleWorkers* const outer = t_pool;
-    const int outer_teams = t_teams;
     t_pool = &idle;
-    t_teams = 1;
     omp_set_num_threads(1);
     work();
     idle.unclaimed.fetch_add(1);
     t_pool = outer;
-    t_teams = outer_teams;
   };
   // The calling thread is one of the workers: one thread fewer to start, and its malloc
   // arena already holds pages (a fresh thread's arena faults in every page it touches).

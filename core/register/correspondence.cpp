@@ -117,6 +117,7 @@ int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const
 int chart_flipped_faces(const mesh::Faces& F, const std::vector<SurfacePoint>& points, const mesh::Faces& target_F,
                         const mesh::Vertices& chart, bool sphere) {
   if (chart.rows() == 0 || target_F.rows() == 0) invalid("the chart has no vertices or no faces");
+  if (target_F.minCoeff() < 0 || target_F.maxCoeff() >= chart.rows()) invalid("a target face has a corner the chart does not have");
   for (const SurfacePoint& p : points)
     if (p.face < 0 || p.face >= target_F.rows()) invalid("a point lies on a face the chart does not have");
   for (Eigen::Index f = 0; f < F.rows(); ++f)
@@ -127,18 +128,18 @@ int chart_flipped_faces(const mesh::Faces& F, const std::vector<SurfacePoint>& p
   auto orientation = [&](const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c) {
     return sphere ? a.dot(b.cross(c)) : (b - a).cross(c - a).z();
   };
-  auto at = [&](Eigen::Index v) -> Eigen::Vector3d { return chart.row(v).transpose(); };
-  double reference = 0;
-  for (Eigen::Index t = 0; t < target_F.rows(); ++t)
-    reference += orientation(at(target_F(t, 0)), at(target_F(t, 1)), at(target_F(t, 2)));
-  if (!(reference != 0)) invalid("the chart gives the target's faces no orientation");
-  auto place = [&](int v) -> Eigen::Vector3d {
-    const SurfacePoint& p = points[static_cast<size_t>(v)];
-    return p.bary[0] * at(target_F(p.face, 0)) + p.bary[1] * at(target_F(p.face, 1)) + p.bary[2] * at(target_F(p.face, 2));
+  auto signed_area = [&](const mesh::Vertices& X, const mesh::Faces& G, Eigen::Index f) {
+    return orientation(X.row(G(f, 0)).transpose(), X.row(G(f, 1)).transpose(), X.row(G(f, 2)).transpose());
   };
+  double reference = 0;
+  for (Eigen::Index t = 0; t < target_F.rows(); ++t) reference += signed_area(chart, target_F, t);
+  if (!(reference != 0)) invalid("the chart gives the target's faces no orientation");
+  mesh::TriMesh charted;
+  charted.V = chart;
+  charted.F = target_F;
+  const mesh::Vertices placed = positions(charted, points);  // each point once, by its barycentric coordinates
   int flipped = 0;
-  for (Eigen::Index f = 0; f < F.rows(); ++f)
-    flipped += orientation(place(F(f, 0)), place(F(f, 1)), place(F(f, 2))) * reference < 0;
+  for (Eigen::Index f = 0; f < F.rows(); ++f) flipped += signed_area(placed, F, f) * reference < 0;
   return flipped;
 }
 

@@ -42,8 +42,9 @@ int flipped_morph_faces(const mesh::Faces& F, const mesh::Vertices& morph, const
 /// faces in the chart. A map of the source surface onto the target that is piecewise linear
 /// in this chart is a bijection exactly where no face counts (and its boundary goes round
 /// once), so unlike flipped_morph_faces this test does not count chords of a face that
-/// span a curl of the target: it is intrinsic, and a correspondence with no fold, such as a
-/// smooth deformation's true one, gives zero whatever the target's curvature.
+/// span a curl of the target. It does count folds of any correspondence read this way: the
+/// evaluation's nearest-point ground truth folds at lion-head's curls and counts there
+/// (bench/RESULTS.md, session 37), and on crowded sphere charts the sign is round-off.
 int chart_flipped_faces(const mesh::Faces& F, const std::vector<SurfacePoint>& points, const mesh::Faces& target_F,
                         const mesh::Vertices& chart, bool sphere);
 
