@@ -265,6 +265,9 @@ class Directions {
 
   /// The next direction from a fresh factor (the start moved far).
   void forget() { have_factor_ = false; }
+  /// Whether the last direction came from a factor of its own Hessian (then GMRES solves
+  /// it to round-off in one or two iterations, whatever eta asked).
+  bool fresh() const { return fresh_; }
 
   /// The step for the heights but the held one, to the relative accuracy eta; pass 0 from
   /// the kept factor, pass 1 from a fresh one. `solved` says whether GMRES converged.
@@ -285,6 +288,7 @@ class Directions {
       const bool fresh = !have_factor_ || (since_factor_ >= kRefactorAfter && r_.max_relative_error > 1e-2) ||
                          attempt > 0 || pass > 0;
       if (fresh) factor(H);
+      fresh_ = fresh;
       d = Eigen::VectorXd::Zero(rhs.size());
       kr = numeric::gmres(apply, precondition, rhs, d, eta, fresh ? 100 : kBudget);
       r_.linear_iterations += kr.iterations;
@@ -308,7 +312,7 @@ class Directions {
 
   OmtResult& r_;
   Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>> llt_;
-  bool have_factor_ = false;
+  bool have_factor_ = false, fresh_ = false;
   int since_factor_ = 0;
 };
 
@@ -402,7 +406,14 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
     // Two passes: the direction from the kept factor at the forcing-term accuracy; if no
     // step along it is accepted, once more from a fresh factor solved to 1e-10 (an
     // inexact direction measured in the per-cell metric need not descend in the 2-norm of
-    // the line search).
+    // the line search). A direction from the kept factor stops its steps at
+    // kInexactStepFloor: below it the direction, not the damping, is what holds the step
+    // back, and the exact one is tried before so short a step is taken. Without the floor,
+    // mannequin-devil's density onto cylinder_locally_refined's 517-site coarsest level took
+    // ten steps of t = 1.5e-5 .. 3.7e-9 in a row, each after 16-28 refused trials, with the
+    // error stuck at 16.52, until no step passed and the exact direction then took t = 1/32
+    // (the pair: 90 -> 81 Newton iterations, bench/RESULTS.md, session 38).
+    constexpr double kInexactStepFloor = 1e-3;
     for (int pass = 0; pass < (probing ? 1 : 2) && !accepted && !gap_closed; ++pass) {
       // Forcing term eta = error (superlinear convergence), but no smaller than what
       // brings this step to the tolerance (0.3 tol / error): the last step is not solved
@@ -420,7 +431,10 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
           break;
         }
       }
-      accepted = line_search(diagram, dh, eps0, opt.tolerance, psi, g, r, probing ? kDampedStep : 0);
+      accepted = line_search(diagram, dh, eps0, opt.tolerance, psi, g, r,
+                             probing                              ? kDampedStep
+                             : pass == 0 && !directions.fresh() ? kInexactStepFloor
+                                                                  : 0);
     }
     if (gap_closed) break;
     if (std::exchange(probing, false) && !accepted) {  // counted as an iteration: it cost one
