@@ -400,6 +400,12 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
   };
   for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
     if (r.max_relative_error <= opt.tolerance || abandon()) break;
+    // The cores of a pool whose other tasks are done (a distance's faster direction): the
+    // cells are integrated in parallel. mannequin-devil x three_peaks, whose directions take
+    // 0.2 s and 5.6 s, 5.7-8.3 s -> 4.8-6.1 s by bench_pair; balanced pairs show nothing
+    // beyond this machine's spread (bench/RESULTS.md, sessions 37-38). Each cell is
+    // integrated by one thread, so the results do not depend on the count.
+    take_idle_workers();
     const Eigen::SparseMatrix<double> H = hessian(r.cells, sites, n, held);
     const Eigen::VectorXd rhs = -drop(g, held);
     bool accepted = false;
