@@ -28,7 +28,7 @@ struct OmtOptions {
   /// Planar domains: where the start (initial_h or Voronoi) leaves a cell more than 10x
   /// off its target, there are at least 1,000 sites and the first Newton step from that
   /// start is damped below 1/4, start instead from a coarse-to-fine
-  /// solve (multilevel.cpp): a quarter of the sites, carrying the masses of the sites
+  /// solve (multilevel.cpp): an eighth of the sites, carrying the masses of the sites
   /// nearest each, is solved first (recursively, by the same rule) and the fine heights
   /// start from the smoothed Legendre transform of its Brenier potential. Where the source
   /// density varies by orders of magnitude (conformal images of real shapes), the plain

@@ -1132,7 +1132,7 @@ TEST(Omt, TheMultilevelSolveReachesThePlainSolvesTransport) {
   // A source density spanning e^10 over a disk mesh and 4,000 sites crowded toward one side
   // (as a real shape's conformal image puts them): the coarse-to-fine solve must meet every
   // target as the plain one does, with the same cost (the dual at the solution) and the same
-  // heights up to a constant (Thm 3.8), through 3 levels (4000 -> 1000 -> 250).
+  // heights up to a constant (Thm 3.8), through 3 levels (8000 -> 1000 -> 125).
   mesh::TriMesh m = mesh::make_disk(40);
   const Points V = m.V.leftCols(2);
   Eigen::VectorXd rho(m.num_faces());
@@ -1141,10 +1141,10 @@ TEST(Omt, TheMultilevelSolveReachesThePlainSolvesTransport) {
     rho[f] = std::exp(5 * c.x() + 2 * std::sin(4 * c.y()));
   }
   const Domain d = Domain::piecewise_constant(V, m.F, rho);
-  Points y = random_in_disk(4000, 3);
+  Points y = random_in_disk(8000, 3);
   for (int i = 0; i < y.rows(); ++i) y(i, 0) = -0.95 + 1.9 * std::pow((y(i, 0) + 0.95) / 1.9, 3);
-  Eigen::VectorXd nu(4000);
-  for (int i = 0; i < 4000; ++i) nu[i] = 1 + y(i, 1) * y(i, 1);
+  Eigen::VectorXd nu(8000);
+  for (int i = 0; i < 8000; ++i) nu[i] = 1 + y(i, 1) * y(i, 1);
   const auto [plain, multi] = plain_and_multilevel(d, y, nu);
   ASSERT_TRUE(plain.converged) << plain.max_relative_error;
   ASSERT_TRUE(multi.converged) << multi.max_relative_error;
