@@ -414,11 +414,12 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
     // inexact direction measured in the per-cell metric need not descend in the 2-norm of
     // the line search). A direction from the kept factor stops its steps at
     // kInexactStepFloor: below it the direction, not the damping, is what holds the step
-    // back, and the exact one is tried before so short a step is taken. Without the floor,
-    // mannequin-devil's density onto cylinder_locally_refined's 517-site coarsest level took
-    // ten steps of t = 1.5e-5 .. 3.7e-9 in a row, each after 16-28 refused trials, with the
-    // error stuck at 16.52, until no step passed and the exact direction then took t = 1/32
-    // (the pair: 90 -> 81 Newton iterations, bench/RESULTS.md, session 38).
+    // back, and the exact one is tried before so short a step is taken. Without the floor
+    // (and with a quarter of the sites per coarse level, as then), mannequin-devil's density
+    // onto cylinder_locally_refined's 517-site coarsest level took ten steps of t = 1.5e-5
+    // .. 3.7e-9 in a row, each after 16-28 refused trials, with the error stuck at 16.52,
+    // until no step passed and the exact direction then took t = 1/32 (the pair: 90 -> 81
+    // Newton iterations, bench/RESULTS.md, session 38).
     constexpr double kInexactStepFloor = 1e-3;
     for (int pass = 0; pass < (probing ? 1 : 2) && !accepted && !gap_closed; ++pass) {
       // Forcing term eta = error (superlinear convergence), but no smaller than what

@@ -1129,7 +1129,7 @@ std::pair<omt::OmtResult, omt::OmtResult> plain_and_multilevel(const Domain& d, 
 }
 
 TEST(Omt, TheMultilevelSolveReachesThePlainSolvesTransport) {
-  // A source density spanning e^10 over a disk mesh and 4,000 sites crowded toward one side
+  // A source density spanning e^10 over a disk mesh and 8,000 sites crowded toward one side
   // (as a real shape's conformal image puts them): the coarse-to-fine solve must meet every
   // target as the plain one does, with the same cost (the dual at the solution) and the same
   // heights up to a constant (Thm 3.8), through 3 levels (8000 -> 1000 -> 125).
