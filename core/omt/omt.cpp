@@ -348,6 +348,18 @@ bool line_search(const PowerDiagrams& diagram, const Eigen::VectorXd& dh, double
 
 namespace {
 
+// A direction from the kept factor (planar domains) stops its steps at kInexactStepFloor:
+// below it the direction, not the damping, is what holds the step back, and the exact one
+// is tried before so short a step is taken. Without the floor (and with a quarter of the
+// sites per coarse level, as then), mannequin-devil's density onto cylinder_locally_refined's
+// 517-site coarsest level took ten steps of t = 1.5e-5 .. 3.7e-9 in a row, each after 16-28
+// refused trials, with the error stuck at 16.52, until no step passed and the exact direction
+// then took t = 1/32 (the pair: 90 -> 81 Newton iterations, bench/RESULTS.md, session 38).
+// Not on the stereographic sphere (the sphere's area-preserving maps): there the changed path
+// left man.off's map with 6 folds after the repair, in CI's every-sphere-mesh test; its steps
+// stay as they were.
+constexpr double kInexactStepFloor = 1e-3;
+
 // Alg. 2: damped Newton on the heights h of the power diagram until every cell's mass meets
 // its target (eq. 3.27 the gradient, eq. 3.28 the Hessian).
 OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu_in, const OmtOptions& opt) {
@@ -413,17 +425,7 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
     // Two passes: the direction from the kept factor at the forcing-term accuracy; if no
     // step along it is accepted, once more from a fresh factor solved to 1e-10 (an
     // inexact direction measured in the per-cell metric need not descend in the 2-norm of
-    // the line search). A direction from the kept factor stops its steps at
-    // kInexactStepFloor: below it the direction, not the damping, is what holds the step
-    // back, and the exact one is tried before so short a step is taken. Without the floor
-    // (and with a quarter of the sites per coarse level, as then), mannequin-devil's density
-    // onto cylinder_locally_refined's 517-site coarsest level took ten steps of t = 1.5e-5
-    // .. 3.7e-9 in a row, each after 16-28 refused trials, with the error stuck at 16.52,
-    // until no step passed and the exact direction then took t = 1/32 (the pair: 90 -> 81
-    // Newton iterations, bench/RESULTS.md, session 38). Not on the stereographic sphere
-    // (the sphere's area-preserving maps): there the changed path left man.off's map with 6
-    // folds after the repair, in CI's every-sphere-mesh test; its steps stay as they were.
-    constexpr double kInexactStepFloor = 1e-3;
+    // the line search). On planar domains the kept factor's steps stop at kInexactStepFloor.
     for (int pass = 0; pass < (probing ? 1 : 2) && !accepted && !gap_closed; ++pass) {
       // Forcing term eta = error (superlinear convergence), but no smaller than what
       // brings this step to the tolerance (0.3 tol / error): the last step is not solved
