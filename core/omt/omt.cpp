@@ -443,10 +443,9 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
           break;
         }
       }
-      accepted = line_search(diagram, dh, eps0, opt.tolerance, psi, g, r,
-                             probing                              ? kDampedStep
-                             : pass == 0 && !directions.fresh() && !domain.is_sphere ? kInexactStepFloor
-                                                                  : 0);
+      const bool floored = pass == 0 && !directions.fresh() && !domain.is_sphere;
+      const double min_step = probing ? kDampedStep : floored ? kInexactStepFloor : 0;
+      accepted = line_search(diagram, dh, eps0, opt.tolerance, psi, g, r, min_step);
     }
     if (gap_closed) break;
     if (std::exchange(probing, false) && !accepted) {  // counted as an iteration: it cost one
