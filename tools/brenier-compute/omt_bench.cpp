@@ -1,11 +1,14 @@
 // brenier-compute omt-bench: the semi-discrete OT solver on synthetic problems (issue 4's
 // benchmark): the uniform disk or square to N random sites, uniform in the domain, with
 // equal masses or masses proportional to exp(-8 |p|^2) (ratio about 3000 on the disk).
+// BENCH_TRACE=1 in the environment prints each Newton iteration's error and clock time to
+// stderr (as bench_pair does).
 #include <sys/resource.h>
 
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <iostream>
 #include <memory>
 #include <random>
@@ -40,6 +43,12 @@ int run_bench(const BenchOptions& o) {
   omt::OmtOptions opt;
   opt.tolerance = o.tolerance;
   auto t0 = std::chrono::steady_clock::now();
+  if (std::getenv("BENCH_TRACE"))
+    opt.progress = [t0](int it, double e) {
+      std::fprintf(stderr, "%9.3f s  iteration %3d  error %.3e\n",
+                   std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), it, e);
+      return true;
+    };
   omt::OmtResult r = omt::solve_omt(domain, y, nu, opt);
   double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   struct rusage ru {};
