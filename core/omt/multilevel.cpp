@@ -19,7 +19,7 @@ std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, cons
                                                       OmtResult& r) {
   const int n = static_cast<int>(sites.rows());
   // The coarse sites: an eighth of them; each site's mass goes to its nearest coarse site.
-  // A quarter (the sphere's ratio) gave the real disk pairs more levels and more damped
+  // A quarter (the ratio until session 38) gave the real disk pairs more levels and more damped
   // steps in all: over the 45 pairs of the ten real disk meshes 1,824 Newton iterations
   // against 1,487 with an eighth, 18 pairs changed, 16 of them fewer (mannequin-devil x
   // three_peaks 327 -> 187, lion-head x cylinder_locally_refined 43 -> 29); the 100K-vertex

@@ -320,8 +320,10 @@ SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& s
 namespace {
 
 // OmtOptions::multilevel on a surface (the sphere's distances): the coarse-to-fine start of
-// multilevel.cpp with the surface's own cells. A quarter of the sites carries the masses of
-// the sites nearest each (the owner under zero heights, found by the greedy walk); its
+// multilevel.cpp with the surface's own cells. An eighth of the sites (as on the plane; a
+// quarter until session 39: over 18 real sphere pairs 1,832 -> 1,594 Newton iterations,
+// 13 pairs fewer, 4 more by at most 4; bench/RESULTS.md) carries the masses of the sites
+// nearest each (the owner under zero heights, found by the greedy walk); its
 // solution's smoothed Legendre transform gives the fine heights, with eps = 2 pi / sqrt(n m):
 // half a coarse cell's size times a site spacing on the unit sphere. Wider smoothing left
 // the fine starts further off (four times this: a third more Newton iterations on the real
@@ -331,7 +333,7 @@ std::optional<Eigen::VectorXd> surface_coarse_to_fine(const SurfaceDensity& surf
                                                       const Eigen::VectorXd& nu, const OmtOptions& opt,
                                                       SurfaceOmtResult& r) {
   const int n = static_cast<int>(sites.rows());
-  const std::vector<int> keep = detail::coarse_subset(n, 4);
+  const std::vector<int> keep = detail::coarse_subset(n, 8);
   const int m = static_cast<int>(keep.size());
   Points3 coarse(m, 3);
   for (int k = 0; k < m; ++k) coarse.row(k) = sites.row(keep[k]);

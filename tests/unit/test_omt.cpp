@@ -1031,7 +1031,7 @@ TEST(SurfaceOmt, TheDualGapTestStopsEarlyWithTheSameCost) {
 TEST(SurfaceOmt, TheMultilevelSolveReachesThePlainSolvesTransport) {
   // A density e^(4z) on the sphere (spanning e^8 from pole to pole) and 1,600 random sites
   // with equal masses: the spherical Voronoi start is far more than 10x off in the densest
-  // cells, so the coarse-to-fine start runs (1,600 -> 400 sites); both solves must meet every
+  // cells, so the coarse-to-fine start runs (1,600 -> 200 sites); both solves must meet every
   // target with the same cost and the same heights up to a constant.
   const mesh::TriMesh m = mesh::make_icosphere(4);
   omt::SurfaceDensity S;
