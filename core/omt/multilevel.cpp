@@ -25,7 +25,7 @@ std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, cons
   // three_peaks 327 -> 187, lion-head x cylinder_locally_refined 43 -> 29); the 100K-vertex
   // disk map's transport 31 -> 27. A half or a third: more; 1/16 or 1/32: mixed
   // (bench/RESULTS.md, session 38).
-  const std::vector<int> keep = coarse_subset(n, 8);
+  const std::vector<int> keep = coarse_subset(n, kCoarseRatio);
   const int m = static_cast<int>(keep.size());
   Points coarse(m, 2);
   for (int k = 0; k < m; ++k) coarse.row(k) = sites.row(keep[k]);

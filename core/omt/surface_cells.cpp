@@ -333,7 +333,7 @@ std::optional<Eigen::VectorXd> surface_coarse_to_fine(const SurfaceDensity& surf
                                                       const Eigen::VectorXd& nu, const OmtOptions& opt,
                                                       SurfaceOmtResult& r) {
   const int n = static_cast<int>(sites.rows());
-  const std::vector<int> keep = detail::coarse_subset(n, 8);
+  const std::vector<int> keep = detail::coarse_subset(n, detail::kCoarseRatio);
   const int m = static_cast<int>(keep.size());
   Points3 coarse(m, 3);
   for (int k = 0; k < m; ++k) coarse.row(k) = sites.row(keep[k]);
