@@ -30,6 +30,10 @@ struct PairResult {
   /// tolerance; see ShapeOptions::cost_tolerance).
   double max_relative_cost_gap = 0;
   bool converged = true;
+  /// Sphere, per direction (forward: the first shape's density as the source): the lower
+  /// density cap its transport needed to converge (0: the shape's own sufficed) and how far
+  /// that moved the source measure in W2, on top of Shape::density_shift.
+  double lowered_cap[2] = {0, 0}, lowered_shift[2] = {0, 0};
   /// Wasserstein with WassersteinOptions::exact_rotation: every turn (disk) or frame
   /// half-turn (sphere) compared by the exact cost, the chosen one first.
   struct Candidate {
@@ -107,6 +111,10 @@ struct TransportCost {
   bool converged = false;
   bool abandoned = false;  // stopped by the caller's bound (omt::OmtOptions::abandon)
   std::string failure;  // why the solve stopped, when it threw
+  /// Sphere: > 0 where the transport did not converge from the source shape's density and
+  /// did from that density held to this lower cap (transport_cost_sphere's retry); the
+  /// cap moved the source measure by at most density_shift more in W2.
+  double density_cap = 0, density_shift = 0;
 };
 /// OmtOptions::abandon for one direction of a pair.
 using Abandon = std::function<bool(double lower_bound)>;
@@ -114,7 +122,10 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, c
                              Eigen::VectorXd& h, const Abandon& abandon = {});
 /// On the sphere (squared chordal cost): src's density on its flat image triangles to dst's
 /// vertex images, each coordinate of the frame multiplied by flip (+-1: a half-turn of dst's
-/// principal frame), to dst's cell tolerance; the cost is the Kantorovich dual.
+/// principal frame), to dst's cell tolerance; the cost is the Kantorovich dual. Where that
+/// transport does not converge (src a different shape from dst), it is solved again with
+/// src's density held to a tenth, then a hundredth, of its peak (cap_density), and the
+/// result says which cap and bound it took (TransportCost::density_cap).
 TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
                                     const omt::Progress& progress, Eigen::VectorXd& h, const Abandon& abandon = {});
 

@@ -170,12 +170,20 @@ DistanceOutcome run_distance(const distance::ShapeInput& a, const distance::Shap
                                    {"radii", {s[0].merge_radius, s[1].merge_radius}},
                                    {"merged_vertices", {s[0].merged_vertices, s[1].merged_vertices}},
                                    {"w2_bound", std::max(s[0].merge_shift, s[1].merge_shift)}};
-  if (s[0].sphere && request.method == distance::Method::kWasserstein)
+  if (s[0].sphere && request.method == distance::Method::kWasserstein) {
     // What the cap on the source densities (ShapeOptions::density_cap) guarantees: each
-    // transport's W2 is within the farther shift of the one from the uncapped density.
-    out.report["density_cap"] = {{"cap", a.options.density_cap},
-                                 {"capped_mass", {s[0].capped_mass, s[1].capped_mass}},
-                                 {"w2_bound", std::max(s[0].density_shift, s[1].density_shift)}};
+    // transport's W2 is within the farther shift of the one from the uncapped density; a
+    // direction that needed a lower cap (transport_cost_sphere's retry) adds that cap's shift
+    // (the triangle inequality), and names the cap in lowered_caps (null: not lowered).
+    const distance::PairResult& r = out.result;
+    nlohmann::json lowered = nlohmann::json::array();
+    for (const double cap : r.lowered_cap) lowered.push_back(cap > 0 ? nlohmann::json(cap) : nlohmann::json());
+    out.report["density_cap"] = {
+        {"cap", a.options.density_cap},
+        {"capped_mass", {s[0].capped_mass, s[1].capped_mass}},
+        {"lowered_caps", lowered},
+        {"w2_bound", std::max(s[0].density_shift + r.lowered_shift[0], s[1].density_shift + r.lowered_shift[1])}};
+  }
   out.a = std::move(s[0]);
   out.b = std::move(s[1]);
   return out;

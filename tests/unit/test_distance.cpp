@@ -515,3 +515,76 @@ TEST(Omt, SitesOutsideTheDomainStartFromAPulledInDiagram) {
   ASSERT_TRUE(r.converged);
   for (int i = 0; i < 5; ++i) EXPECT_NEAR(r.cells.mass[i], 4.0 / 5, 1e-7);
 }
+
+namespace {
+
+// A sphere shape's exact-distance source alone: the icosphere's flat triangles with density
+// `contrast` on the faces within `radius` (radians) of +z and 1 elsewhere.
+Shape peaked_source(int level, double radius, double contrast) {
+  const mesh::TriMesh m = mesh::make_icosphere(level);
+  auto surface = std::make_shared<omt::SurfaceDensity>();
+  surface->vertices = m.V;
+  surface->faces = m.F;
+  surface->density = Eigen::VectorXd::Ones(m.num_faces());
+  for (int f = 0; f < m.num_faces(); ++f) {
+    const Eigen::RowVector3d c = (m.V.row(m.F(f, 0)) + m.V.row(m.F(f, 1)) + m.V.row(m.F(f, 2))).normalized();
+    if (std::acos(std::min(1.0, c.z())) < radius) surface->density[f] = contrast;
+  }
+  Shape s;
+  s.name = "peak";
+  s.sphere = true;
+  s.surface = surface;
+  return s;
+}
+
+// A sphere shape's sites alone: n random unit vectors of equal mass.
+Shape random_sites(int n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> g;
+  Shape s;
+  s.name = "sites";
+  s.sphere = true;
+  s.sphere_sites.resize(n, 3);
+  for (int i = 0; i < n; ++i) s.sphere_sites.row(i) = Eigen::RowVector3d(g(rng), g(rng), g(rng)).normalized();
+  s.mass = Eigen::VectorXd::Constant(n, 4 * kPi / n);
+  return s;
+}
+
+}  // namespace
+
+// The retry of transport_cost_sphere: 1,000 sites into a density whose peak (1e4 on the
+// faces within 0.1 rad of +z: 96 % of the mass on 0.25 % of the sphere) stalls the damped
+// Newton steps, as bear's sites into dino's density did. The retry holds the peak to a tenth,
+// converges, and says so: the cap, and a W2 shift that is the distance cap_density moved the
+// mass (positive, at most the sphere's diameter). Its cost is the transport of exactly that
+// lowered density, solved on its own. A transport that converges at once is not retried.
+TEST(Distance, ASphereTransportThatStallsIsSolvedAgainAtALowerCapAndSaysSo) {
+  const Shape src = peaked_source(3, 0.1, 1e4), dst = random_sites(1000, 7);
+  Eigen::VectorXd h;
+  const distance::TransportCost c = distance::transport_cost_sphere(src, dst, Eigen::Vector3d::Ones(), {}, h);
+  ASSERT_TRUE(c.converged) << c.failure;
+  EXPECT_DOUBLE_EQ(c.density_cap, 1e3);
+  EXPECT_GT(c.density_shift, 0);
+  EXPECT_LE(c.density_shift, 2);
+  EXPECT_EQ(h.size(), 1000);
+
+  const omt::SurfaceDensity& s = *src.surface;
+  const Eigen::VectorXd image = mesh::face_areas(s.faces, s.vertices);
+  Eigen::VectorXd mass = s.density.cwiseProduct(image);
+  EXPECT_DOUBLE_EQ(distance::cap_density(s.faces, s.vertices, image, 1e3, mass).shift, c.density_shift);
+  omt::SurfaceDensity lower = s;
+  lower.density = mass.cwiseQuotient(image);
+  omt::OmtOptions o;
+  o.tolerance = 1e-8;
+  o.multilevel = true;
+  const omt::SurfaceOmtResult direct = omt::solve_surface_omt(lower, dst.sphere_sites, dst.mass, o);
+  ASSERT_TRUE(direct.converged);
+  EXPECT_NEAR(c.w2_squared, direct.dual_value, 1e-5 * direct.dual_value);
+
+  Eigen::VectorXd h2;
+  const distance::TransportCost easy =
+      distance::transport_cost_sphere(peaked_source(3, 0.15, 1e2), dst, Eigen::Vector3d::Ones(), {}, h2);
+  EXPECT_TRUE(easy.converged);
+  EXPECT_EQ(easy.density_cap, 0);
+  EXPECT_EQ(easy.density_shift, 0);
+}

@@ -173,8 +173,19 @@ int run_matrix(const MatrixCommand& o) {
     };
   const distance::MatrixTile tile = distance::compute_tile(shapes, mo);
   std::vector<std::string> failed;
-  for (const distance::PairEntry& e : tile.pairs)
-    if (!e.result.converged) failed.push_back("(" + tile.names[e.i] + ", " + tile.names[e.j] + ")");
+  // Sphere pairs whose transport needed a lower density cap than the shapes' (the retry of
+  // distance::transport_cost_sphere): the caps per direction and the W2 they add to the
+  // shapes' own bounds.
+  nlohmann::json lowered = nlohmann::json::array();
+  for (const distance::PairEntry& e : tile.pairs) {
+    const std::string pair = "(" + tile.names[e.i] + ", " + tile.names[e.j] + ")";
+    if (!e.result.converged) failed.push_back(pair);
+    const double* cap = e.result.lowered_cap;
+    if (cap[0] > 0 || cap[1] > 0)
+      lowered.push_back({{"pair", pair},
+                         {"caps", {cap[0], cap[1]}},
+                         {"w2_shift", std::max(e.result.lowered_shift[0], e.result.lowered_shift[1])}});
+  }
   if (!o.tile.empty()) {
     // Whole or absent: whoever watches for tile files (brenierd, a merge) never reads half of one.
     const std::string tmp = o.output + ".tmp." + std::to_string(::getpid());
@@ -189,6 +200,7 @@ int run_matrix(const MatrixCommand& o) {
                                {"pairs", tile.pairs.size()},
                                {"tile", {{"index", tile.tile.index}, {"count", tile.tile.count}}},
                                {"not_converged", failed},
+                               {"lowered_density_caps", lowered},
                                {"seconds", seconds_since(t0)}};
   if (!o.report_html.empty())
     write_output(o.report_html, render::matrix_report_html({distance::assemble({tile}), tile.names, {}}, summary));
