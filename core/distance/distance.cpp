@@ -153,7 +153,11 @@ TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Ei
   // stay at t ~ 1e-3 for 600 iterations; warm starts from a solution at a lower cap stall
   // the same way. At a tenth of the peak man x bear converges (345 iterations); dino x bear
   // needs a hundredth (188). Each retry starts afresh (the coarse-to-fine start); its bound
-  // adds to the shape's own by the triangle inequality.
+  // adds to the shape's own by the triangle inequality. Raising the heights of the few sites
+  // a refused trial empties, to their neighbours' step, did not help: their neighbours
+  // emptied instead (bench/RESULTS.md, session 40). An exact frame search's lower bounds
+  // (`abandon`) then mix the duals of both densities: each holds within the lowered cap's
+  // shift, which the result states.
   const omt::SurfaceDensity& surface = *src.surface;
   const Eigen::VectorXd image = mesh::face_areas(surface.faces, surface.vertices);
   const double peak = surface.density.maxCoeff();
