@@ -308,7 +308,7 @@ struct Eval {
   bool converged = true, abandoned = false;
   int iterations = 0;
   double max_relative_error = 0, max_relative_cost_gap = 0;
-  double lowered_cap[2] = {0, 0}, lowered_shift[2] = {0, 0};  // TransportCost::density_cap, per direction
+  std::array<double, 2> lowered_cap{}, lowered_shift{};  // TransportCost::density_cap, per direction
   Eigen::VectorXd h[2];  // the heights reached (b's sites, a's sites)
 };
 
@@ -427,7 +427,8 @@ void take(PairResult& out, const Eval& best, bool debias) {
   out.converged = best.converged;
   out.max_relative_error = best.max_relative_error;
   out.max_relative_cost_gap = best.max_relative_cost_gap;
-  for (int k = 0; k < 2; ++k) out.lowered_cap[k] = best.lowered_cap[k], out.lowered_shift[k] = best.lowered_shift[k];
+  out.lowered_cap = best.lowered_cap;
+  out.lowered_shift = best.lowered_shift;
   if (debias) out.normalization += "; quantization bias removed";
   out.distance = out.converged ? best.mean : std::numeric_limits<double>::quiet_NaN();
 }

@@ -1,6 +1,7 @@
 // Shape distances between two prepared surfaces (distance/shape.hpp).
 #pragma once
 
+#include <array>
 #include <functional>
 #include <limits>
 #include <string>
@@ -33,7 +34,7 @@ struct PairResult {
   /// Sphere, per direction (forward: the first shape's density as the source): the lower
   /// density cap its transport needed to converge (0: the shape's own sufficed) and how far
   /// that moved the source measure in W2, on top of Shape::density_shift.
-  double lowered_cap[2] = {0, 0}, lowered_shift[2] = {0, 0};
+  std::array<double, 2> lowered_cap{}, lowered_shift{};
   /// Wasserstein with WassersteinOptions::exact_rotation: every turn (disk) or frame
   /// half-turn (sphere) compared by the exact cost, the chosen one first.
   struct Candidate {

@@ -2,6 +2,7 @@
 // distance matrices over datasets (in tiles for job arrays) and their analysis (sec. 4.4).
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -180,11 +181,9 @@ int run_matrix(const MatrixCommand& o) {
   for (const distance::PairEntry& e : tile.pairs) {
     const std::string pair = "(" + tile.names[e.i] + ", " + tile.names[e.j] + ")";
     if (!e.result.converged) failed.push_back(pair);
-    const double* cap = e.result.lowered_cap;
+    const std::array<double, 2>& cap = e.result.lowered_cap;
     if (cap[0] > 0 || cap[1] > 0)
-      lowered.push_back({{"pair", pair},
-                         {"caps", {cap[0], cap[1]}},
-                         {"w2_shift", std::max(e.result.lowered_shift[0], e.result.lowered_shift[1])}});
+      lowered.push_back({{"pair", pair}, {"caps", cap}, {"w2_shift", std::ranges::max(e.result.lowered_shift)}});
   }
   if (!o.tile.empty()) {
     // Whole or absent: whoever watches for tile files (brenierd, a merge) never reads half of one.
