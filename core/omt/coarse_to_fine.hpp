@@ -52,11 +52,15 @@ inline OmtOptions coarse_options(const OmtOptions& opt, const std::vector<int>& 
 /// OmtOptions::multilevel never costs an answer: where the solve from the coarse-to-fine
 /// start did not converge (no step accepted from it, say), it is solved again from the plain
 /// start, the iterations of both counted. `solve(options)` gives an OmtResult or
-/// SurfaceOmtResult.
+/// SurfaceOmtResult. A surface solve that stalled (OmtOptions::stall_window) is not: its
+/// caller asked to hear of a stall early, and the plain start, further off, crept the same
+/// way where measured (dino x bear: 766x -> 550x off in 200 iterations; bench/RESULTS.md).
 template <class Solve>
 auto with_plain_fallback(const OmtOptions& opt, Solve solve) {
   auto r = solve(opt);
   if (r.levels == 1 || r.converged || r.abandoned) return r;
+  if constexpr (requires { r.stalled; })
+    if (r.stalled) return r;
   OmtOptions plain = opt;
   plain.multilevel = false;
   const int spent = r.iterations;

@@ -59,7 +59,18 @@ struct OmtOptions {
   /// `abandoned` set and dual_value holding that bound. For callers that compare transports
   /// (the best turn of a shape distance) and can drop one once its bound passes the best.
   std::function<bool(double lower_bound)> abandon;
+  /// Surface transports (solve_surface_omt): stop, not converged and `stalled`, once the
+  /// relative gradient norm |(m - nu) / nu| has fallen by less than kStallDecrease over the
+  /// last `stall_window` Newton iterations (0: off). The damped steps guarantee a fall of at
+  /// least t/2 per step, so this fires only where the accepted steps stay near t ~ 1e-3 for the
+  /// whole window. For callers with something better to do than creep: the sphere distance's
+  /// retry at a lower density cap (distance.cpp). Not passed to the coarse levels.
+  int stall_window = 0;
 };
+
+/// OmtOptions::stall_window's fall: 5 %, a tenth of what steps of t = 1/256 (the slowest seen
+/// in transports that converge) guarantee over 60 iterations.
+inline constexpr double kStallDecrease = 0.05;
 
 struct OmtResult {
   Eigen::VectorXd h;       // heights, sum zero (unique up to a constant: Thm 3.8)

@@ -409,6 +409,7 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
   llt.cholmod().print = 0;
   double last_t = 1;
   bool gap_closed = false;
+  std::vector<double> gnorms;
   // The Kantorovich dual at h: sum_i int_{W_i} |x - y_i|^2 - sum_i w_i (m_i - nu_i).
   auto dual_at = [&](const Eigen::VectorXd& heights, const SurfaceCells& cells) {
     Eigen::VectorXd w(n);
@@ -438,6 +439,14 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
       }
     }
     const double gnorm = relative_norm(g);
+    // OmtOptions::stall_window: the accepted steps have barely moved the gradient for a whole
+    // window (gnorms[k] is the norm at the start of iteration k of this level).
+    gnorms.push_back(gnorm);
+    const int window = opt.stall_window;
+    if (window > 0 && r.iterations >= window && gnorm > (1 - kStallDecrease) * gnorms[r.iterations - window]) {
+      r.stalled = true;
+      break;
+    }
     bool accepted = false;
     // The halving starts at four times the last accepted step (at most 1): where the steps
     // stay short for many iterations (measured: oblong's density to retinal's vertices, 100
@@ -479,7 +488,7 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
   }
   r.dual_value = dual_at(h, r.cells);
   r.h = h.array() - h.mean();
-  r.converged = (r.max_relative_error <= opt.tolerance || gap_closed) && !r.abandoned;
+  r.converged = (r.max_relative_error <= opt.tolerance || gap_closed) && !r.abandoned && !r.stalled;
   r.iterations += r.coarse_iterations;
   return r;
 }

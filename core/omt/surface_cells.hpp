@@ -68,6 +68,7 @@ struct SurfaceOmtResult {
   /// rise of the dual to its maximum (dual_value + dual_rise estimates W2^2 to third order).
   double dual_rise = 0;
   bool abandoned = false;  // stopped by OmtOptions::abandon (converged is then false)
+  bool stalled = false;    // stopped by OmtOptions::stall_window (converged is then false)
   int levels = 1;          // OmtOptions::multilevel: the levels the start came from, this one included
   int coarse_iterations = 0;  // of `iterations`, those spent on the coarse levels
 };

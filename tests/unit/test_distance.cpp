@@ -588,3 +588,29 @@ TEST(Distance, ASphereTransportThatStallsIsSolvedAgainAtALowerCapAndSaysSo) {
   EXPECT_EQ(easy.density_cap, 0);
   EXPECT_EQ(easy.density_shift, 0);
 }
+
+// OmtOptions::stall_window, which the retry above relies on to give up early: the same peak
+// stops as stalled, not converged, after at least a window of fine iterations and well before
+// the 200-iteration cap, and without the plain-start fallback (which crept the same way on
+// dino x bear); the easy peak converges under the same window, unaffected.
+TEST(Distance, ASurfaceTransportThatCreepsStopsAsStalledAfterItsWindow) {
+  const Shape dst = random_sites(1000, 7);
+  omt::OmtOptions o;
+  o.tolerance = 1e-8;
+  o.multilevel = true;
+  o.stall_window = 60;
+  const omt::SurfaceOmtResult r =
+      omt::solve_surface_omt(*peaked_source(3, 0.1, 1e4).surface, dst.sphere_sites, dst.mass, o);
+  EXPECT_TRUE(r.stalled);
+  EXPECT_FALSE(r.converged);
+  EXPECT_GT(r.levels, 1);  // stopped on the coarse-to-fine start: no fallback after it
+  EXPECT_GE(r.iterations - r.coarse_iterations, 60);
+  EXPECT_LT(r.iterations - r.coarse_iterations, 200);
+  EXPECT_GT(r.max_relative_error, 1);
+
+  const omt::SurfaceOmtResult easy =
+      omt::solve_surface_omt(*peaked_source(3, 0.15, 1e2).surface, dst.sphere_sites, dst.mass, o);
+  EXPECT_TRUE(easy.converged);
+  EXPECT_FALSE(easy.stalled);
+  EXPECT_LE(easy.max_relative_error, 1e-8);
+}
