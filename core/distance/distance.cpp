@@ -3,6 +3,7 @@
 #include <unsupported/Eigen/FFT>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <complex>
 #include <mutex>
@@ -170,8 +171,9 @@ TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Ei
   const omt::SurfaceDensity& surface = *src.surface;
   const Eigen::VectorXd image = mesh::face_areas(surface.faces, surface.vertices);
   const double peak = surface.density.maxCoeff();
-  for (const double factor : {10.0, 100.0}) {
-    o.stall_window = factor < 100 ? kStallWindow : 0;  // the last cap runs to its end
+  constexpr std::array<double, 2> kFactors = {10.0, 100.0};
+  for (const double factor : kFactors) {
+    o.stall_window = factor != kFactors.back() ? kStallWindow : 0;  // the last cap runs to its end
     omt::SurfaceDensity lower = surface;
     Eigen::VectorXd mass = surface.density.cwiseProduct(image);
     const DensityCap moved = cap_density(surface.faces, surface.vertices, image, peak / factor, mass);

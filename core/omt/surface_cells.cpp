@@ -441,8 +441,8 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
     const double gnorm = relative_norm(g);
     // OmtOptions::stall_window: the accepted steps have barely moved the gradient for a whole
     // window (gnorms[k] is the norm at the start of iteration k of this level).
-    gnorms.push_back(gnorm);
     const int window = opt.stall_window;
+    if (window > 0) gnorms.push_back(gnorm);
     if (window > 0 && r.iterations >= window && gnorm > (1 - kStallDecrease) * gnorms[r.iterations - window]) {
       r.stalled = true;
       break;
