@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "omt/omt.hpp"
+#include "omt/stall.hpp"
 
 namespace brenier::omt::detail {
 
@@ -47,26 +48,6 @@ inline OmtOptions coarse_options(const OmtOptions& opt, const std::vector<int>& 
     for (size_t k = 0; k < keep.size(); ++k) co.initial_h[static_cast<Eigen::Index>(k)] = opt.initial_h[keep[k]];
   }
   return co;
-}
-
-/// OmtOptions::multilevel never costs an answer: where the solve from the coarse-to-fine
-/// start did not converge (no step accepted from it, say), it is solved again from the plain
-/// start, the iterations of both counted. `solve(options)` gives an OmtResult or
-/// SurfaceOmtResult. A surface solve that stalled (OmtOptions::stall_window) is not: its
-/// caller asked to hear of a stall early, and the plain start, further off, crept the same
-/// way where measured (dino x bear: 766x -> 550x off in 200 iterations; bench/RESULTS.md).
-template <class Solve>
-auto with_plain_fallback(const OmtOptions& opt, Solve solve) {
-  auto r = solve(opt);
-  if (r.levels == 1 || r.converged || r.abandoned) return r;
-  if constexpr (requires { r.stalled; })
-    if (r.stalled) return r;
-  OmtOptions plain = opt;
-  plain.multilevel = false;
-  const int spent = r.iterations;
-  r = solve(plain);
-  r.iterations += spent;
-  return r;
 }
 
 /// The fine sites' heights from a coarse solution (coarse sites Y_j, heights H_j, cells of

@@ -321,9 +321,9 @@ class Directions {
 // relative to the targets, as the stopping test does: in the plain 2-norm the large cells'
 // round-off hides the small cells' progress. 30 halvings (t = 1e-9) without progress mean
 // the round-off floor; in the quadratic phase (error below 1e-4, where full steps are
-// taken) 4 do; none below `min_step`. Returns whether a step was taken (psi, g and r.cells
-// moved to it).
-bool line_search(const PowerDiagrams& diagram, const Eigen::VectorXd& dh, double eps0, double tolerance, Offsets& psi,
+// taken) 4 do; none below `min_step`. Returns the step taken (psi, g and r.cells moved to
+// it), 0 if none.
+double line_search(const PowerDiagrams& diagram, const Eigen::VectorXd& dh, double eps0, double tolerance, Offsets& psi,
                  Eigen::VectorXd& g, OmtResult& r, double min_step = 0) {
   const Eigen::VectorXd& nu = r.target;
   const double gnorm = relative_norm(g, nu);
@@ -338,10 +338,10 @@ bool line_search(const PowerDiagrams& diagram, const Eigen::VectorXd& dh, double
       psi = std::move(trial);
       r.cells = std::move(*c);
       g = std::move(gt);
-      return true;
+      return t;
     }
   }
-  return false;
+  return 0;
 }
 
 }  // namespace
@@ -410,8 +410,14 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
     r.dual_value = dual(psi.hi, psi.lo, r.cells, g);
     return r.abandoned = opt.abandon(r.dual_value);
   };
+  detail::StallWatch stall(opt.stall_window);
   for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
     if (r.max_relative_error <= opt.tolerance || abandon()) break;
+    // OmtOptions::stall_window (not while probing: one iteration decides there).
+    if (!probing && stall.stalled(relative_norm(g, nu))) {
+      r.stalled = true;
+      break;
+    }
     // The cores of a pool whose other tasks are done (a distance's faster direction): the
     // cells are integrated in parallel. mannequin-devil x three_peaks, whose directions take
     // 0.2 s and 5.6 s, 5.7-8.3 s -> 4.8-6.1 s by bench_pair; balanced pairs show nothing
@@ -421,12 +427,12 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
     if (!domain.is_sphere) take_idle_workers();
     const Eigen::SparseMatrix<double> H = hessian(r.cells, sites, n, held);
     const Eigen::VectorXd rhs = -drop(g, held);
-    bool accepted = false;
+    double step = 0;
     // Two passes: the direction from the kept factor at the forcing-term accuracy; if no
     // step along it is accepted, once more from a fresh factor solved to 1e-10 (an
     // inexact direction measured in the per-cell metric need not descend in the 2-norm of
     // the line search). On planar domains the kept factor's steps stop at kInexactStepFloor.
-    for (int pass = 0; pass < (probing ? 1 : 2) && !accepted && !gap_closed; ++pass) {
+    for (int pass = 0; pass < (probing ? 1 : 2) && step == 0 && !gap_closed; ++pass) {
       // Forcing term eta = error (superlinear convergence), but no smaller than what
       // brings this step to the tolerance (0.3 tol / error): the last step is not solved
       // beyond what it needs.
@@ -445,12 +451,15 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
       }
       const bool floored = pass == 0 && !directions.fresh() && !domain.is_sphere;
       const double min_step = probing ? kDampedStep : floored ? kInexactStepFloor : 0;
-      accepted = line_search(diagram, dh, eps0, opt.tolerance, psi, g, r, min_step);
+      step = line_search(diagram, dh, eps0, opt.tolerance, psi, g, r, min_step);
     }
+    const bool accepted = step > 0;
+    stall.took(step);
     if (gap_closed) break;
     if (std::exchange(probing, false) && !accepted) {  // counted as an iteration: it cost one
       coarse_start(domain, diagram, sites, opt, psi, r);
       if (r.levels > 1) {  // taken (if not, the plain solve goes on from where it was)
+        stall.restart();
         eps0 = kmt_floor(domain, sites, r);
         g = r.cells.mass - nu;
         directions.forget();
@@ -468,7 +477,7 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
   if (!domain.is_sphere && !gap_closed && !r.abandoned) r.dual_value = dual(psi.hi, psi.lo, r.cells, r.cells.mass - nu);
   r.h = (psi.hi - 0.5 * sites.rowwise().squaredNorm()) + psi.lo;
   r.h.array() -= r.h.mean();
-  r.converged = (r.max_relative_error <= opt.tolerance || gap_closed) && !r.abandoned;
+  r.converged = (r.max_relative_error <= opt.tolerance || gap_closed) && !r.abandoned && !r.stalled;
   r.iterations += r.coarse_iterations;
   return r;
 }
@@ -476,7 +485,8 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
 }  // namespace
 
 OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu, const OmtOptions& opt) {
-  return detail::with_plain_fallback(opt, [&](const OmtOptions& o) { return solve(domain, sites, nu, o); });
+  return detail::with_plain_fallback(
+      opt, [&](const OmtOptions& o) { return solve(domain, sites, nu, o); }, detail::AfterStall::kPlainStart);
 }
 
 }  // namespace brenier::omt

@@ -59,12 +59,15 @@ struct OmtOptions {
   /// `abandoned` set and dual_value holding that bound. For callers that compare transports
   /// (the best turn of a shape distance) and can drop one once its bound passes the best.
   std::function<bool(double lower_bound)> abandon;
-  /// Surface transports (solve_surface_omt): stop, not converged and `stalled`, once the
-  /// relative gradient norm |(m - nu) / nu| has fallen by less than kStallDecrease over the
-  /// last `stall_window` Newton iterations (0: off). The damped steps guarantee a fall of at
-  /// least t/2 per step, so this fires only where the accepted steps stay near t ~ 1e-3 for the
-  /// whole window. For callers with something better to do than creep: the sphere distance's
-  /// retry at a lower density cap (distance.cpp). Not passed to the coarse levels.
+  /// Stop, not converged and `stalled`, once the relative gradient norm |(m - nu) / nu| has
+  /// fallen by less than kStallDecrease over the last `stall_window` Newton iterations (0:
+  /// off). The damped steps guarantee a fall of at least t/2 per step, so this fires only
+  /// where the accepted steps stay near t ~ 1e-3 for the whole window. For callers with
+  /// something better to do than creep. On the sphere (solve_surface_omt) the stalled solve
+  /// is returned: the sphere distance retries at a lower density cap (distance.cpp). On
+  /// planar domains (solve_omt) a stalled coarse-to-fine start is followed by the plain start
+  /// (OmtOptions::multilevel), which gets the iterations the stalled one left unused. Not
+  /// passed to the coarse levels.
   int stall_window = 0;
 };
 
@@ -90,6 +93,7 @@ struct OmtResult {
   /// cost to third order). 0 otherwise.
   double dual_rise = 0;
   bool abandoned = false;  // stopped by OmtOptions::abandon (converged is then false)
+  bool stalled = false;    // stopped by OmtOptions::stall_window (converged is then false)
   int levels = 1;          // OmtOptions::multilevel: the levels the start came from, this one included
   int coarse_iterations = 0;  // of `iterations`, those spent on the coarse levels
 };

@@ -409,7 +409,7 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
   llt.cholmod().print = 0;
   double last_t = 1;
   bool gap_closed = false;
-  std::vector<double> gnorms;
+  detail::StallWatch stall(opt.stall_window);
   // The Kantorovich dual at h: sum_i int_{W_i} |x - y_i|^2 - sum_i w_i (m_i - nu_i).
   auto dual_at = [&](const Eigen::VectorXd& heights, const SurfaceCells& cells) {
     Eigen::VectorXd w(n);
@@ -440,10 +440,8 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
     }
     const double gnorm = relative_norm(g);
     // OmtOptions::stall_window: the accepted steps have barely moved the gradient for a whole
-    // window (gnorms[k] is the norm at the start of iteration k of this level).
-    const int window = opt.stall_window;
-    if (window > 0) gnorms.push_back(gnorm);
-    if (window > 0 && r.iterations >= window && gnorm > (1 - kStallDecrease) * gnorms[r.iterations - window]) {
+    // window.
+    if (stall.stalled(gnorm)) {
       r.stalled = true;
       break;
     }
@@ -497,7 +495,8 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
 
 SurfaceOmtResult solve_surface_omt(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& nu,
                                    const OmtOptions& opt) {
-  return detail::with_plain_fallback(opt, [&](const OmtOptions& o) { return solve_surface(surface, sites, nu, o); });
+  return detail::with_plain_fallback(
+      opt, [&](const OmtOptions& o) { return solve_surface(surface, sites, nu, o); }, detail::AfterStall::kReturn);
 }
 
 }  // namespace brenier::omt

@@ -12,6 +12,7 @@
 #include "mesh/geometry.hpp"
 #include "mesh/shapes.hpp"
 #include "omt/area_preserving.hpp"
+#include "omt/stall.hpp"
 #include "omt/fold_repair.hpp"
 #include "omt/omt.hpp"
 #include "omt/power_diagram.hpp"
@@ -1118,6 +1119,30 @@ TEST(SurfaceCells, SideWeightsAreTheMassesDerivatives) {
   }
 }
 
+// A source density spanning e^10 over a disk mesh and 8,000 sites crowded toward one side
+// (as a real shape's conformal image puts them), with targets 1 + y^2.
+struct SkewedTransport {
+  Domain d;
+  Points y;
+  Eigen::VectorXd nu;
+};
+
+SkewedTransport skewed_transport() {
+  mesh::TriMesh m = mesh::make_disk(40);
+  const Points V = m.V.leftCols(2);
+  Eigen::VectorXd rho(m.num_faces());
+  for (int f = 0; f < m.num_faces(); ++f) {
+    const Eigen::RowVector2d c = (V.row(m.F(f, 0)) + V.row(m.F(f, 1)) + V.row(m.F(f, 2))) / 3;
+    rho[f] = std::exp(5 * c.x() + 2 * std::sin(4 * c.y()));
+  }
+  Domain d = Domain::piecewise_constant(V, m.F, rho);
+  Points y = random_in_disk(8000, 3);
+  for (int i = 0; i < y.rows(); ++i) y(i, 0) = -0.95 + 1.9 * std::pow((y(i, 0) + 0.95) / 1.9, 3);
+  Eigen::VectorXd nu(8000);
+  for (int i = 0; i < 8000; ++i) nu[i] = 1 + y(i, 1) * y(i, 1);
+  return {std::move(d), std::move(y), std::move(nu)};
+}
+
 // The transport solved to 1e-9 plainly and with OmtOptions::multilevel.
 std::pair<omt::OmtResult, omt::OmtResult> plain_and_multilevel(const Domain& d, const Points& y,
                                                                 const Eigen::VectorXd& nu) {
@@ -1129,22 +1154,10 @@ std::pair<omt::OmtResult, omt::OmtResult> plain_and_multilevel(const Domain& d, 
 }
 
 TEST(Omt, TheMultilevelSolveReachesThePlainSolvesTransport) {
-  // A source density spanning e^10 over a disk mesh and 8,000 sites crowded toward one side
-  // (as a real shape's conformal image puts them): the coarse-to-fine solve must meet every
-  // target as the plain one does, with the same cost (the dual at the solution) and the same
-  // heights up to a constant (Thm 3.8), through 3 levels (8000 -> 1000 -> 125).
-  mesh::TriMesh m = mesh::make_disk(40);
-  const Points V = m.V.leftCols(2);
-  Eigen::VectorXd rho(m.num_faces());
-  for (int f = 0; f < m.num_faces(); ++f) {
-    const Eigen::RowVector2d c = (V.row(m.F(f, 0)) + V.row(m.F(f, 1)) + V.row(m.F(f, 2))) / 3;
-    rho[f] = std::exp(5 * c.x() + 2 * std::sin(4 * c.y()));
-  }
-  const Domain d = Domain::piecewise_constant(V, m.F, rho);
-  Points y = random_in_disk(8000, 3);
-  for (int i = 0; i < y.rows(); ++i) y(i, 0) = -0.95 + 1.9 * std::pow((y(i, 0) + 0.95) / 1.9, 3);
-  Eigen::VectorXd nu(8000);
-  for (int i = 0; i < 8000; ++i) nu[i] = 1 + y(i, 1) * y(i, 1);
+  // skewed_transport(): the coarse-to-fine solve must meet every target as the plain one
+  // does, with the same cost (the dual at the solution) and the same heights up to a
+  // constant (Thm 3.8), through 3 levels (8000 -> 1000 -> 125).
+  const auto [d, y, nu] = skewed_transport();
   const auto [plain, multi] = plain_and_multilevel(d, y, nu);
   ASSERT_TRUE(plain.converged) << plain.max_relative_error;
   ASSERT_TRUE(multi.converged) << multi.max_relative_error;
@@ -1193,4 +1206,96 @@ TEST(Omt, TheMultilevelStartIsTakenOnlyWhereTheFirstNewtonStepIsDamped) {
       EXPECT_LT((multi.h - plain.h).cwiseAbs().maxCoeff(), 1e-6);
     }
   }
+}
+
+TEST(Omt, AStallWatchFiresOnACreepingGradientOrOnARunOfTinySteps) {
+  // The gradient test: a fall of under kStallDecrease over the window stops it, a larger one
+  // does not; off with window 0.
+  omt::detail::StallWatch slow(3), fast(3), off(0);
+  for (int k = 0; k < 3; ++k) {
+    EXPECT_FALSE(slow.stalled(1.0 - 0.01 * k));
+    EXPECT_FALSE(fast.stalled(std::pow(0.9, k)));
+    EXPECT_FALSE(off.stalled(1.0));
+  }
+  EXPECT_TRUE(slow.stalled(0.97));                  // 3 % in 3 iterations
+  EXPECT_FALSE(fast.stalled(std::pow(0.9, 3)));     // 27 %
+  EXPECT_FALSE(off.stalled(1.0));
+  // The run of tiny steps: kCreepingRun of them in a row, however the gradient moves; a
+  // longer step between them starts the count again, and so does a new start.
+  using W = omt::detail::StallWatch;
+  omt::detail::StallWatch steps(1000);
+  double gnorm = 1;
+  for (int k = 0; k < W::kCreepingRun - 1; ++k) {
+    steps.took(W::kCreepingStep / 2);
+    EXPECT_FALSE(steps.stalled(gnorm *= 0.5));
+  }
+  steps.took(2 * W::kCreepingStep);
+  EXPECT_FALSE(steps.stalled(gnorm));
+  for (int k = 0; k < W::kCreepingRun; ++k) steps.took(W::kCreepingStep / 2);
+  EXPECT_TRUE(steps.stalled(gnorm));
+  steps.restart();
+  EXPECT_FALSE(steps.stalled(gnorm));
+}
+
+TEST(Omt, AStalledCoarseToFineSolveHandsTheIterationsItLeftToThePlainStart) {
+  // A stand-in solver: the coarse-to-fine solve stalls after 30 coarse and 60 fine
+  // iterations; the plain start converges in whatever it is given.
+  std::vector<omt::OmtOptions> calls;
+  auto solve = [&](const omt::OmtOptions& o) {
+    calls.push_back(o);
+    omt::OmtResult r;
+    if (o.multilevel) {
+      r.levels = 2;
+      r.coarse_iterations = 30;
+      r.iterations = 90;
+      r.stalled = true;
+    } else {
+      r.iterations = 150;
+      r.converged = true;
+    }
+    return r;
+  };
+  omt::OmtOptions o;
+  o.multilevel = true;
+  o.max_iterations = 200;
+  o.stall_window = 60;
+  const omt::OmtResult r = omt::detail::with_plain_fallback(o, solve, omt::detail::AfterStall::kPlainStart);
+  ASSERT_EQ(calls.size(), 2u);
+  EXPECT_FALSE(calls[1].multilevel);
+  EXPECT_EQ(calls[1].max_iterations, 200 + 140);  // its own, and the 140 fine ones left unused
+  EXPECT_TRUE(r.converged);
+  EXPECT_EQ(r.iterations, 90 + 150);
+  calls.clear();
+  const omt::OmtResult kept = omt::detail::with_plain_fallback(o, solve, omt::detail::AfterStall::kReturn);
+  EXPECT_EQ(calls.size(), 1u);
+  EXPECT_TRUE(kept.stalled);
+  EXPECT_FALSE(kept.converged);
+}
+
+TEST(Omt, ThePlanarStallWindowStopsNoSolveThatConvergesAndSaysWhenItStops) {
+  // skewed_transport(), 3 levels: with the distance's window of 60 nothing changes, step for
+  // step.
+  const auto [d, y, nu] = skewed_transport();
+  omt::OmtOptions o;
+  o.tolerance = 1e-9;
+  o.multilevel = true;
+  const omt::OmtResult free = omt::solve_omt(d, y, nu, o);
+  o.stall_window = 60;
+  const omt::OmtResult watched = omt::solve_omt(d, y, nu, o);
+  ASSERT_TRUE(free.converged && watched.converged);
+  EXPECT_FALSE(watched.stalled);
+  EXPECT_EQ(watched.iterations, free.iterations);
+  EXPECT_EQ(watched.h, free.h);
+  // The plain start there (no coarse levels, nothing to fall back on) takes damped steps
+  // first: a window of 3 asking a 5 % fall stops it, says it stalled, and not converged.
+  o.multilevel = false;
+  o.stall_window = 0;
+  const omt::OmtResult plain = omt::solve_omt(d, y, nu, o);
+  o.stall_window = 3;
+  const omt::OmtResult hurried = omt::solve_omt(d, y, nu, o);
+  ASSERT_TRUE(plain.converged);
+  EXPECT_TRUE(hurried.stalled);
+  EXPECT_FALSE(hurried.converged);
+  EXPECT_GT(hurried.max_relative_error, o.tolerance);
+  EXPECT_LT(hurried.iterations, plain.iterations);
 }
