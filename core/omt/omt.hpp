@@ -62,8 +62,9 @@ struct OmtOptions {
   /// Stop, not converged and `stalled`, once the relative gradient norm |(m - nu) / nu| has
   /// fallen by less than kStallDecrease over the last `stall_window` Newton iterations (0:
   /// off). The damped steps guarantee a fall of at least t/2 per step, so this fires only
-  /// where the accepted steps stay near t ~ 1e-3 for the whole window. For callers with
-  /// something better to do than creep. On the sphere (solve_surface_omt) the stalled solve
+  /// where the accepted steps stay near t ~ 1e-3 for the whole window. On planar domains
+  /// also once 10 accepted steps in a row were shorter than 1e-4 (detail::StallWatch, in
+  /// stall.hpp). For callers with something better to do than creep. On the sphere (solve_surface_omt) the stalled solve
   /// is returned: the sphere distance retries at a lower density cap (distance.cpp). On
   /// planar domains (solve_omt) a stalled coarse-to-fine start is followed by the plain start
   /// (OmtOptions::multilevel), which gets the iterations the stalled one left unused. Not
