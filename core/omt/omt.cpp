@@ -413,8 +413,9 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
   detail::StallWatch stall(opt.stall_window);
   for (r.iterations = 0; r.iterations < opt.max_iterations; ++r.iterations) {
     if (r.max_relative_error <= opt.tolerance || abandon()) break;
-    // OmtOptions::stall_window (not while probing: one iteration decides there).
-    if (!probing && stall.stalled(relative_norm(g, nu))) {
+    // OmtOptions::stall_window (not while probing: one iteration decides there). The norm is
+    // an O(n) pass, taken only with a window.
+    if (!probing && stall.on() && stall.stalled(relative_norm(g, nu))) {
       r.stalled = true;
       break;
     }

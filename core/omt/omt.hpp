@@ -64,11 +64,11 @@ struct OmtOptions {
   /// off). The damped steps guarantee a fall of at least t/2 per step, so this fires only
   /// where the accepted steps stay near t ~ 1e-3 for the whole window. On planar domains
   /// also once 10 accepted steps in a row were shorter than 1e-4 (detail::StallWatch, in
-  /// stall.hpp). For callers with something better to do than creep. On the sphere (solve_surface_omt) the stalled solve
-  /// is returned: the sphere distance retries at a lower density cap (distance.cpp). On
-  /// planar domains (solve_omt) a stalled coarse-to-fine start is followed by the plain start
-  /// (OmtOptions::multilevel), which gets the iterations the stalled one left unused. Not
-  /// passed to the coarse levels.
+  /// stall.hpp). For callers with something better to do than creep. On the sphere
+  /// (solve_surface_omt) the stalled solve is returned: the sphere distance retries at a
+  /// lower density cap (distance.cpp). On planar domains (solve_omt) a stalled coarse-to-fine
+  /// start is followed by the plain start (OmtOptions::multilevel), which gets the iterations
+  /// the stalled one left unused. Not passed to the coarse levels.
   int stall_window = 0;
 };
 

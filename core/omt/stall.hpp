@@ -27,6 +27,8 @@ class StallWatch {
   static constexpr int kCreepingRun = 10;
 
   explicit StallWatch(int window) : window_(window) {}
+  /// Whether a window was set: callers skip computing the norm otherwise.
+  bool on() const { return window_ > 0; }
   bool stalled(double gnorm) {
     if (window_ <= 0) return false;
     norms_.push_back(gnorm);
