@@ -427,6 +427,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
   // direction with this shape on both sides is (same start, same tolerance).
   Eigen::VectorXd start;
   s.quantization = quantization_cost(s, transport_cost(s, s, 0.0, progress, start));
+  s.quantization_h = start;
   const int R = opt.quadrature.rings, A = opt.quadrature.angles;
   s.samples.resize(R, A);
   s.spectrum.resize(R, A);
@@ -448,7 +449,7 @@ Shape prepare_shape(const mesh::TriMesh& m, const std::string& name, const Shape
 
 namespace {
 
-constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '8'};
+constexpr char kMagic[8] = {'B', 'R', 'S', 'H', 'A', 'P', 'E', '9'};
 
 struct Writer {
   std::ostream& os;
@@ -531,6 +532,7 @@ void save_shape(const Shape& s, const std::string& path) {
     w.mat(s.tri);
     w.mat(s.density);
     w.mat(s.h);
+    w.mat(s.quantization_h);
     w.mat(s.samples);
     w.mat(s.spectrum);
     w.mat(s.sphere_samples);
@@ -578,6 +580,7 @@ bool load_shape(const std::string& path, Shape& out) {
   r.mat(s.tri);
   r.mat(s.density);
   r.mat(s.h);
+  r.mat(s.quantization_h);
   r.mat(s.samples);
   r.mat(s.spectrum);
   r.mat(s.sphere_samples);
@@ -589,6 +592,7 @@ bool load_shape(const std::string& path, Shape& out) {
   if (s.merged_vertices < 0 || (!s.sphere && s.merged_vertices != 0) || nsites < 1) return false;
   if (s.sites.rows() != nsites || s.mass.size() != nsites || s.tri.rows() != s.faces ||
       s.density.size() != s.faces || s.h.size() != nsites ||
+      (s.quantization_h.size() != 0 && s.quantization_h.size() != nsites) ||
       (s.sphere && (s.sphere_sites.rows() != nsites || s.sphere_vertices.rows() != s.vertices)) ||
       s.samples.rows() != s.spectrum.rows() || s.samples.cols() != s.spectrum.cols())
     return false;

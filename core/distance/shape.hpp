@@ -128,6 +128,8 @@ struct Shape {
   /// W2^2 from the density to the shape's own vertex measure (its quantization cost, the
   /// bias the Wasserstein distance removes), by the same transport as a pair's.
   double quantization = 0;
+  /// Disk: the heights of that transport (the density onto the shape's own vertices).
+  Eigen::VectorXd quantization_h;
   // Of the quantization and of every pair with this shape as the sites (ShapeOptions).
   double transport_tolerance = 1e-3, cost_tolerance = 1e-6;
   int conformal_iterations = 0;

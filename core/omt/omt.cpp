@@ -4,6 +4,7 @@
 #include <Eigen/SparseCore>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <optional>
 #include <string>
 #include <utility>
@@ -102,6 +103,9 @@ void check_transport_input(int n, const Eigen::VectorXd& nu_in, const OmtOptions
     if (!(nu_in[i] > 0) || !std::isfinite(nu_in[i]))
       invalid("target mass of site " + std::to_string(i) + " is " + std::to_string(nu_in[i]) + "; it must be positive");
   if (!(opt.tolerance > 0)) invalid("the OMT tolerance must be positive");
+  if (opt.alternative_h.size() != 0 && (opt.alternative_h.size() != n || !opt.alternative_h.allFinite()))
+    invalid("alternative heights: " + std::to_string(opt.alternative_h.size()) + " finite values needed for " +
+            std::to_string(n) + " sites");
 }
 
 namespace {
@@ -172,27 +176,55 @@ void try_warm_start(const PowerDiagrams& diagram, const Eigen::VectorXd& initial
   }
 }
 
+// The start at offsets `start` if it leaves no cell empty: its cells, and D there.
+struct Start {
+  Eigen::VectorXd psi;
+  std::optional<PowerCells> cells;
+  double dual = -std::numeric_limits<double>::infinity();
+};
+void rate_start(const Eigen::VectorXd& nu, Start& s) {
+  if (s.cells && s.cells->empty_cells == 0)
+    s.dual = dual(s.psi, Eigen::VectorXd::Zero(s.psi.size()), *s.cells, s.cells->mass - nu);
+}
+
 // OmtOptions::multilevel: the coarse-to-fine heights, taken if they leave no cell empty --
 // whatever the norm says: a start far off in a few cells can lose to Voronoi in the norm
 // while far nearer the solution elsewhere (lion-head's sites from mannequin-devil's density,
 // 2,089-site level: 71 against 67, and Voronoi then took 28 Newton iterations, the transfer 25).
-void coarse_start(const Domain& domain, const PowerDiagrams& diagram, const Points& sites, const OmtOptions& opt,
+// OmtOptions::alternative_h replaces them where its dual is higher (r.levels is then 1).
+// Returns whether the start was replaced.
+bool coarse_start(const Domain& domain, const PowerDiagrams& diagram, const Points& sites, const OmtOptions& opt,
                   Offsets& psi, OmtResult& r) {
+  const int n = static_cast<int>(sites.rows());
   const std::optional<Eigen::VectorXd> h = detail::coarse_to_fine_heights(domain, sites, r.target, opt, r);
-  if (!h) return;
-  Eigen::VectorXd start = diagram.offsets(*h);
-  std::optional<PowerCells> c = diagram.at_offsets_if_none_hidden(start);
-  if (c && c->empty_cells > 0 && c->empty_cells <= std::max(1, static_cast<int>(sites.rows()) / 100))
-    reopen_empty_cells(diagram, start, c);
-  if (!c || c->empty_cells > 0) {
-    r.levels = 1;  // not taken: the start is the plain one
-    return;
+  Start s;
+  if (h) {
+    s.psi = diagram.offsets(*h);
+    s.cells = diagram.at_offsets_if_none_hidden(s.psi);
+    if (s.cells && s.cells->empty_cells > 0 && s.cells->empty_cells <= std::max(1, n / 100))
+      reopen_empty_cells(diagram, s.psi, s.cells);
   }
-  psi = Offsets(static_cast<int>(sites.rows()));
-  psi.hi = std::move(start);
-  r.cells = std::move(*c);
+  if (opt.alternative_h.size() != 0) {
+    rate_start(r.target, s);
+    Start rival;
+    rival.psi = diagram.offsets(opt.alternative_h);
+    rival.cells = diagram.at_offsets_if_none_hidden(rival.psi);
+    rate_start(r.target, rival);
+    if (rival.dual > s.dual) {
+      s = std::move(rival);
+      r.levels = 1;
+    }
+  }
+  if (!s.cells || s.cells->empty_cells > 0) {
+    r.levels = 1;  // not taken: the start is the plain one
+    return false;
+  }
+  psi = Offsets(n);
+  psi.hi = std::move(s.psi);
+  r.cells = std::move(*s.cells);
   r.warm_started = true;
   r.max_relative_error = max_relative(r.cells.mass, r.target);
+  return true;
 }
 
 // Sites outside the domain (a conformal image's vertices on the unit circle, beyond the
@@ -458,8 +490,7 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
     stall.took(step);
     if (gap_closed) break;
     if (std::exchange(probing, false) && !accepted) {  // counted as an iteration: it cost one
-      coarse_start(domain, diagram, sites, opt, psi, r);
-      if (r.levels > 1) {  // taken (if not, the plain solve goes on from where it was)
+      if (coarse_start(domain, diagram, sites, opt, psi, r)) {  // taken (if not, the plain solve goes on)
         stall.restart();
         eps0 = kmt_floor(domain, sites, r);
         g = r.cells.mass - nu;

@@ -38,6 +38,16 @@ struct OmtOptions {
   /// solve_surface_omt (the sphere) takes it wherever the start is 10x off with at least
   /// 1,000 sites, without the first-step trial.
   bool multilevel = false;
+  /// With `multilevel`: a rival of the coarse-to-fine start (one height per site, or empty),
+  /// taken instead of it where it leaves no cell empty and its Kantorovich dual D (below, at
+  /// OmtOptions::dual_gap_tolerance) is higher. D is the concave function the Newton steps
+  /// climb, at most the transport's cost W2^2 at any heights and equal to it at the solution,
+  /// so the start with the higher D is nearer the solution in the solver's own objective. The
+  /// coarse levels are solved first to know their start's D. A solve from the rival that does
+  /// not converge is returned as it is (no plain start follows). For the distance: another
+  /// shape's density onto a shape's vertices, from that shape's own heights (bench/
+  /// RESULTS.md, session 43).
+  Eigen::VectorXd alternative_h;
   /// With `multilevel`: whether the first Newton step decides (above). Off, the
   /// coarse-to-fine start is taken wherever the start is 10x off: how the coarse levels are
   /// solved, below a level whose own first step was damped.
@@ -100,7 +110,8 @@ struct OmtResult {
 };
 
 /// Throws Error(kInvalidArgument) unless there are sites, one positive finite target mass per
-/// site, and a positive tolerance: the checks every transport solver makes first.
+/// site, a positive tolerance and, if given, one finite alternative height per site: the
+/// checks every transport solver makes first.
 void check_transport_input(int sites, const Eigen::VectorXd& nu, const OmtOptions& options);
 
 /// The OT map from the uniform density on `domain` to the sites with masses `nu` (any

@@ -326,6 +326,8 @@ TEST(Distance, CacheFilesReadBackExactlyAndRejectDamage) {
   ASSERT_TRUE(distance::load_shape(path, b));
   EXPECT_EQ(b.key, a.key);
   EXPECT_EQ(b.quantization, a.quantization);
+  EXPECT_EQ(b.quantization_h.size(), a.sites.rows());  // the disk's quantization heights
+  EXPECT_TRUE(b.quantization_h == a.quantization_h);
   EXPECT_TRUE(b.sites == a.sites && b.mass == a.mass && b.tri == a.tri && b.density == a.density && b.h == a.h &&
               b.samples == a.samples && b.spectrum == a.spectrum);
   // Truncated, or not a cache file at all: not loaded (the shape is then computed again).

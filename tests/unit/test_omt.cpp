@@ -1299,3 +1299,36 @@ TEST(Omt, ThePlanarStallWindowStopsNoSolveThatConvergesAndSaysWhenItStops) {
   EXPECT_GT(hurried.max_relative_error, o.tolerance);
   EXPECT_LT(hurried.iterations, plain.iterations);
 }
+
+TEST(Omt, TheAlternativeStartReplacesTheCoarseToFineOneOnlyWhereItsDualIsHigher) {
+  // skewed_transport() with its targets moved by up to 20 %: the first transport's heights
+  // are a start near the second's solution (as a shape's own heights are for its deformed
+  // copy's density), and win over the coarse-to-fine start by the Kantorovich dual. The
+  // Voronoi diagram's heights lose to it, and the solve is then the coarse-to-fine one,
+  // step for step.
+  const auto [d, y, nu] = skewed_transport();
+  omt::OmtOptions o;
+  o.tolerance = 1e-9;
+  const omt::OmtResult first = omt::solve_omt(d, y, nu, o);
+  ASSERT_TRUE(first.converged);
+  Eigen::VectorXd moved = nu;
+  for (Eigen::Index i = 0; i < moved.size(); ++i) moved[i] *= 1 + 0.2 * std::sin(3 * y(i, 0) + 2 * y(i, 1));
+  o.multilevel = true;
+  const omt::OmtResult coarse = omt::solve_omt(d, y, moved, o);
+  o.alternative_h = first.h;
+  const omt::OmtResult near = omt::solve_omt(d, y, moved, o);
+  o.alternative_h = -0.5 * y.rowwise().squaredNorm();  // Voronoi
+  const omt::OmtResult voronoi = omt::solve_omt(d, y, moved, o);
+  ASSERT_TRUE(coarse.converged && near.converged && voronoi.converged);
+  EXPECT_EQ(coarse.levels, 3);
+  EXPECT_EQ(near.levels, 1);
+  EXPECT_GT(near.coarse_iterations, 0);  // solved to rate their start
+  EXPECT_LT(near.iterations - near.coarse_iterations, coarse.iterations - coarse.coarse_iterations);
+  EXPECT_NEAR(near.dual_value, coarse.dual_value, 1e-9 * coarse.dual_value);
+  EXPECT_LT((near.h - coarse.h).cwiseAbs().maxCoeff(), 1e-6);
+  EXPECT_EQ(voronoi.levels, 3);
+  EXPECT_EQ(voronoi.iterations, coarse.iterations);
+  EXPECT_EQ(voronoi.h, coarse.h);
+  o.alternative_h = first.h.head(10);
+  EXPECT_ERROR(omt::solve_omt(d, y, moved, o), ErrorCode::kInvalidArgument, "alternative heights");
+}
