@@ -216,7 +216,7 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, c
   // from its quantization, the better start where src is a copy of dst, deformed or remeshed,
   // and taken there by the dual. mannequin-devil's density onto its remeshed copy's 51,841
   // sites: the coarse-to-fine start's fine level fell from 153x to 93x off in 200 iterations
-  // and the pair did not converge; from these heights (167x off, but D = 1.2e-4 against
+  // and the pair did not converge; from these heights (168x off, but D = 1.2e-4 against
   // -3.8e-4) it converged in 57. Unrelated shapes keep the coarse-to-fine start (lion-head x
   // mannequin-devil: D = 0.047 against 0.0013). (bench/RESULTS.md, session 43.)
   if (&src != &dst && h.size() == 0) o.alternative_h = dst.quantization_h;
