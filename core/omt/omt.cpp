@@ -176,7 +176,8 @@ void try_warm_start(const PowerDiagrams& diagram, const Eigen::VectorXd& initial
   }
 }
 
-// The start at offsets `start` if it leaves no cell empty: its cells, and D there.
+// A candidate start: its offsets, its cells (none where a site is hidden) and the dual D there
+// (minus infinity where a cell is empty: not a start).
 struct Start {
   Eigen::VectorXd psi;
   std::optional<PowerCells> cells;

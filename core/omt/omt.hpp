@@ -38,15 +38,15 @@ struct OmtOptions {
   /// solve_surface_omt (the sphere) takes it wherever the start is 10x off with at least
   /// 1,000 sites, without the first-step trial.
   bool multilevel = false;
-  /// With `multilevel`: a rival of the coarse-to-fine start (one height per site, or empty),
-  /// taken instead of it where it leaves no cell empty and its Kantorovich dual D (below, at
-  /// OmtOptions::dual_gap_tolerance) is higher. D is the concave function the Newton steps
-  /// climb, at most the transport's cost W2^2 at any heights and equal to it at the solution,
-  /// so the start with the higher D is nearer the solution in the solver's own objective. The
-  /// coarse levels are solved first to know their start's D. A solve from the rival that does
-  /// not converge is returned as it is (no plain start follows). For the distance: another
-  /// shape's density onto a shape's vertices, from that shape's own heights (bench/
-  /// RESULTS.md, session 43).
+  /// With `multilevel`, planar domains: a rival of the coarse-to-fine start (one height per
+  /// site, or empty), taken instead of it where it leaves no cell empty and its Kantorovich
+  /// dual D (below, at OmtOptions::dual_gap_tolerance) is higher. D is the concave function
+  /// the Newton steps climb, at most the transport's cost W2^2 at any heights and equal to it
+  /// at the solution, so the start with the higher D is nearer the solution in the solver's
+  /// own objective. The coarse levels are solved first to know their start's D. A solve from
+  /// the rival that does not converge is returned as it is (no plain start follows). For the
+  /// distance: another shape's density onto a shape's vertices, from that shape's own heights
+  /// (bench/RESULTS.md, session 43).
   Eigen::VectorXd alternative_h;
   /// With `multilevel`: whether the first Newton step decides (above). Off, the
   /// coarse-to-fine start is taken wherever the start is 10x off: how the coarse levels are
