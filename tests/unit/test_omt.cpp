@@ -1330,5 +1330,7 @@ TEST(Omt, TheAlternativeStartReplacesTheCoarseToFineOneOnlyWhereItsDualIsHigher)
   EXPECT_EQ(voronoi.iterations, coarse.iterations);
   EXPECT_EQ(voronoi.h, coarse.h);
   o.alternative_h = first.h.head(10);
-  EXPECT_ERROR(omt::solve_omt(d, y, moved, o), ErrorCode::kInvalidArgument, "alternative heights");
+  const Domain& domain = d;  // (a lambda in EXPECT_ERROR may not capture structured bindings)
+  const Points& sites = y;
+  EXPECT_ERROR(omt::solve_omt(domain, sites, moved, o), ErrorCode::kInvalidArgument, "alternative heights");
 }
