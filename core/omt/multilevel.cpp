@@ -16,16 +16,17 @@ namespace detail {
 
 std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, const Points& sites,
                                                       const Eigen::VectorXd& nu, const OmtOptions& opt,
-                                                      OmtResult& r) {
+                                                      OmtResult& r, int ratio, bool recurse) {
   const int n = static_cast<int>(sites.rows());
-  // The coarse sites: an eighth of them; each site's mass goes to its nearest coarse site.
+  // The coarse sites: 1/ratio of them, an eighth (kCoarseRatio) but for the rival start's probe
+  // (omt.cpp); each site's mass goes to its nearest coarse site.
   // A quarter (the ratio until session 38) gave the real disk pairs more levels and more damped
   // steps in all: over the 45 pairs of the ten real disk meshes 1,824 Newton iterations
   // against 1,487 with an eighth, 18 pairs changed, 16 of them fewer (mannequin-devil x
   // three_peaks 327 -> 187, lion-head x cylinder_locally_refined 43 -> 29); the 100K-vertex
   // disk map's transport 31 -> 27. A half or a third: more; 1/16 or 1/32: mixed
   // (bench/RESULTS.md, session 38).
-  const std::vector<int> keep = coarse_subset(n, kCoarseRatio);
+  const std::vector<int> keep = coarse_subset(n, ratio);
   const int m = static_cast<int>(keep.size());
   Points coarse(m, 2);
   for (int k = 0; k < m; ++k) coarse.row(k) = sites.row(keep[k]);
@@ -35,7 +36,9 @@ std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, cons
   for (int i = 0; i < n; ++i) coarse_nu[nearest[i]] += nu[i];
   OmtResult c;
   try {
-    c = solve_omt(domain, coarse, coarse_nu, coarse_options(opt, keep, n));
+    OmtOptions co = coarse_options(opt, keep, n);
+    co.multilevel = recurse;
+    c = solve_omt(domain, coarse, coarse_nu, co);
   } catch (const Error& e) {
     if (e.code() != ErrorCode::kNotConverged) throw;
     return std::nullopt;  // where the coarse problem fails the fine one may not

@@ -188,16 +188,13 @@ void rate_start(const Eigen::VectorXd& nu, Start& s) {
     s.dual = dual(s.psi, Eigen::VectorXd::Zero(s.psi.size()), *s.cells, s.cells->mass - nu);
 }
 
-// OmtOptions::multilevel: the coarse-to-fine heights, taken if they leave no cell empty --
-// whatever the norm says: a start far off in a few cells can lose to Voronoi in the norm
-// while far nearer the solution elsewhere (lion-head's sites from mannequin-devil's density,
-// 2,089-site level: 71 against 67, and Voronoi then took 28 Newton iterations, the transfer 25).
-// OmtOptions::alternative_h replaces them where its dual is higher (r.levels is then 1).
-// Returns whether the start was replaced.
-bool coarse_start(const Domain& domain, const PowerDiagrams& diagram, const Points& sites, const OmtOptions& opt,
-                  Offsets& psi, OmtResult& r) {
+// A coarse-to-fine start (coarse_to_fine_heights with `ratio` and `recurse`), its cells reopened
+// where at most 1 % are empty, and rated.
+Start coarse_to_fine_start(const Domain& domain, const PowerDiagrams& diagram, const Points& sites,
+                           const OmtOptions& opt, OmtResult& r, int ratio, bool recurse) {
   const int n = static_cast<int>(sites.rows());
-  const std::optional<Eigen::VectorXd> h = detail::coarse_to_fine_heights(domain, sites, r.target, opt, r);
+  const std::optional<Eigen::VectorXd> h =
+      detail::coarse_to_fine_heights(domain, sites, r.target, opt, r, ratio, recurse);
   Start s;
   if (h) {
     s.psi = diagram.offsets(*h);
@@ -205,21 +202,62 @@ bool coarse_start(const Domain& domain, const PowerDiagrams& diagram, const Poin
     if (s.cells && s.cells->empty_cells > 0 && s.cells->empty_cells <= std::max(1, n / 100))
       reopen_empty_cells(diagram, s.psi, s.cells);
   }
-  if (opt.alternative_h.size() != 0) {
-    rate_start(r.target, s);
-    Start rival;
-    rival.psi = diagram.offsets(opt.alternative_h);
-    rival.cells = diagram.at_offsets_if_none_hidden(rival.psi);
-    rate_start(r.target, rival);
-    if (rival.dual > s.dual) {
-      s = std::move(rival);
-      r.levels = 1;
-    }
+  rate_start(r.target, s);
+  return s;
+}
+
+// The rival start (OmtOptions::alternative_h), rated; nothing without one.
+std::optional<Start> rival_start(const PowerDiagrams& diagram, const OmtOptions& opt, const Eigen::VectorXd& nu) {
+  if (opt.alternative_h.size() == 0) return std::nullopt;
+  Start rival;
+  rival.psi = diagram.offsets(opt.alternative_h);
+  rival.cells = diagram.at_offsets_if_none_hidden(rival.psi);
+  rate_start(nu, rival);
+  return rival;
+}
+
+// The probe's subset: 1/64 of the sites, solved in one level (OmtOptions::alternative_h).
+// Its start's D, against the rival's, at the first transport of each direction (session 44):
+// near copies (mannequin-devil x remeshed, lion-head x deformed, lion-head-deformed x
+// remeshed) -0.005..-0.026 against the rival's 4e-4..1.4e-3; unrelated shapes (lion-head x
+// mannequin-devil, mushroom x three_peaks, nefertiti x lion-head, mannequin-devil x
+// three_peaks, cylinder_locally_refined x lion-head) 0.022..0.57 against at most 2.5e-3.
+// A 1/512 subset's start fell below the rival on lion-head x mannequin-devil and mushroom x
+// three_peaks too.
+constexpr int kProbeRatio = 64;
+// The probe costs a fine diagram and the coarse solve (0.03 s of nefertiti x lion-head's
+// 0.22 s), so it runs only where the rival's D is within 15 % of the plain start's: near
+// copies, where both sit just below W2^2 (the six directions above: rival / plain 0.97..1.07),
+// not the unrelated shapes (0.55, 0.74, 1.37, or the plain start's D negative). It misses
+// mannequin-devil x remeshed's 12,977-site direction, whose plain start has D = -0.30: probed
+// too, that pair took 105 Newton iterations instead of 248 (bench/RESULTS.md, session 44).
+constexpr double kNearPlain = 0.15;
+
+// OmtOptions::multilevel: the coarse-to-fine heights, taken if they leave no cell empty --
+// whatever the norm says: a start far off in a few cells can lose to Voronoi in the norm
+// while far nearer the solution elsewhere (lion-head's sites from mannequin-devil's density,
+// 2,089-site level: 71 against 67, and Voronoi then took 28 Newton iterations, the transfer 25).
+// OmtOptions::alternative_h replaces them where its dual is higher than the probe's start
+// (then the coarse levels are not solved) or than theirs (r.levels is then 1).
+// Returns whether the start was replaced.
+bool coarse_start(const Domain& domain, const PowerDiagrams& diagram, const Points& sites, const OmtOptions& opt,
+                  Offsets& psi, OmtResult& r) {
+  const int n = static_cast<int>(sites.rows());
+  std::optional<Start> rival = rival_start(diagram, opt, r.target);
+  Start s;
+  bool rival_taken = false;
+  const double plain = r.cells.empty_cells == 0 ? dual(psi.hi, psi.lo, r.cells, r.cells.mass - r.target) : 0;
+  if (rival && plain > 0 && std::abs(rival->dual / plain - 1) <= kNearPlain) {
+    const Start probe = coarse_to_fine_start(domain, diagram, sites, opt, r, kProbeRatio, false);
+    rival_taken = std::isfinite(probe.dual) && rival->dual > probe.dual;
   }
-  if (!s.cells || s.cells->empty_cells > 0) {
-    r.levels = 1;  // not taken: the start is the plain one
-    return false;
+  if (!rival_taken) {
+    s = coarse_to_fine_start(domain, diagram, sites, opt, r, detail::kCoarseRatio, true);
+    rival_taken = rival && rival->dual > s.dual;
   }
+  if (rival_taken) s = std::move(*rival);
+  if (rival_taken || !s.cells || s.cells->empty_cells > 0) r.levels = 1;  // the start is the rival or the plain one
+  if (!s.cells || s.cells->empty_cells > 0) return false;
   psi = Offsets(n);
   psi.hi = std::move(s.psi);
   r.cells = std::move(*s.cells);

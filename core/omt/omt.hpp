@@ -43,7 +43,12 @@ struct OmtOptions {
   /// dual D (below, at OmtOptions::dual_gap_tolerance) is higher. D is the concave function
   /// the Newton steps climb, at most the transport's cost W2^2 at any heights and equal to it
   /// at the solution, so the start with the higher D is nearer the solution in the solver's
-  /// own objective. The coarse levels are solved first to know their start's D. A solve from
+  /// own objective. A one-level probe decides first whether the coarse levels are worth
+  /// solving: the 1/64 subset alone, solved plainly and carried to the fine sites like a
+  /// coarse level; it runs where the rival's D is within 15 % of the plain start's (positive)
+  /// one. Where the rival's D beats the probe's start, the rival is taken at once; the
+  /// near copies' rivals beat it 5-20x, the unrelated shapes' lose 10-200x (bench/RESULTS.md,
+  /// session 44). Otherwise the coarse levels are solved and their start's D decides. A solve from
   /// the rival that does not converge is returned as it is (no plain start follows). For the
   /// distance: another shape's density onto a shape's vertices, from that shape's own heights
   /// (bench/RESULTS.md, session 43).
@@ -130,12 +135,12 @@ OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::Vect
 
 namespace detail {
 /// OmtOptions::multilevel's start (multilevel.cpp): heights for the sites from the solve of
-/// a 1/4 subset carrying their masses, or nothing if that solve did not converge; adds the
-/// coarse levels' iterations to `r` and sets r.levels (the caller resets it to 1 if it does
-/// not take the heights).
+/// a 1/`ratio` subset carrying their masses (itself coarse-to-fine where `recurse`), or
+/// nothing if that solve did not converge; adds the coarse levels' iterations to `r` and
+/// sets r.levels (the caller resets it to 1 if it does not take the heights).
 std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, const Points& sites,
                                                       const Eigen::VectorXd& nu, const OmtOptions& options,
-                                                      OmtResult& r);
+                                                      OmtResult& r, int ratio, bool recurse);
 }  // namespace detail
 
 }  // namespace brenier::omt

@@ -1329,6 +1329,27 @@ TEST(Omt, TheAlternativeStartReplacesTheCoarseToFineOneOnlyWhereItsDualIsHigher)
   EXPECT_EQ(voronoi.levels, 3);
   EXPECT_EQ(voronoi.iterations, coarse.iterations);
   EXPECT_EQ(voronoi.h, coarse.h);
+  // A near copy whose plain start is far off in a few cells only: the first transport's
+  // heights as both the start and the rival, with 8 of the targets cut 30-fold. The two
+  // starts' duals agree, so the one-level probe runs (1/64 of the sites); the rival beats it
+  // and is taken without solving the coarse level (12 Newton iterations from it, 10 from the
+  // rival, the probe's 4 included).
+  Eigen::VectorXd spiked = nu;
+  for (int i = 0; i < 8; ++i) spiked[1000 * i + 7] /= 30;
+  o.initial_h = first.h;
+  o.multilevel_probe = false;  // its first step is not damped: the start is replaced at once
+  o.alternative_h.resize(0);
+  const omt::OmtResult spiked_coarse = omt::solve_omt(d, y, spiked, o);
+  o.alternative_h = first.h;
+  const omt::OmtResult copy = omt::solve_omt(d, y, spiked, o);
+  ASSERT_TRUE(spiked_coarse.converged && copy.converged);
+  EXPECT_EQ(spiked_coarse.levels, 2);
+  EXPECT_EQ(copy.levels, 1);
+  EXPECT_GT(copy.coarse_iterations, 0);  // the probe's
+  EXPECT_LT(copy.iterations - copy.coarse_iterations, spiked_coarse.iterations - spiked_coarse.coarse_iterations);
+  EXPECT_NEAR(copy.dual_value, spiked_coarse.dual_value, 1e-9 * spiked_coarse.dual_value);
+  o.initial_h.resize(0);
+  o.multilevel_probe = true;
   o.alternative_h = first.h.head(10);
   const Domain& domain = d;  // (a lambda in EXPECT_ERROR may not capture structured bindings)
   const Points& sites = y;
