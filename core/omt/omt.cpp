@@ -189,7 +189,7 @@ void rate_start(const Eigen::VectorXd& nu, Start& s) {
 }
 
 // A coarse-to-fine start (coarse_to_fine_heights with `ratio` and `recurse`), its cells reopened
-// where at most 1 % are empty, and rated.
+// where at most 1 % are empty; not rated (only a rival needs that).
 Start coarse_to_fine_start(const Domain& domain, const PowerDiagrams& diagram, const Points& sites,
                            const OmtOptions& opt, OmtResult& r, int ratio, bool recurse) {
   const int n = static_cast<int>(sites.rows());
@@ -202,7 +202,6 @@ Start coarse_to_fine_start(const Domain& domain, const PowerDiagrams& diagram, c
     if (s.cells && s.cells->empty_cells > 0 && s.cells->empty_cells <= std::max(1, n / 100))
       reopen_empty_cells(diagram, s.psi, s.cells);
   }
-  rate_start(r.target, s);
   return s;
 }
 
@@ -233,6 +232,18 @@ constexpr int kProbeRatio = 64;
 // too, that pair took 105 Newton iterations instead of 248 (bench/RESULTS.md, session 44).
 constexpr double kNearPlain = 0.15;
 
+// Whether the rival beats the probe's start (false where the gate above keeps the probe from
+// running, or the probe's coarse solve fails: the coarse levels then decide).
+bool probe_prefers_rival(const Domain& domain, const PowerDiagrams& diagram, const Points& sites,
+                         const OmtOptions& opt, const Offsets& psi, OmtResult& r, const Start& rival) {
+  if (r.cells.empty_cells > 0) return false;
+  const double plain = dual(psi.hi, psi.lo, r.cells, r.cells.mass - r.target);
+  if (!(plain > 0 && std::abs(rival.dual / plain - 1) <= kNearPlain)) return false;
+  Start probe = coarse_to_fine_start(domain, diagram, sites, opt, r, kProbeRatio, false);
+  rate_start(r.target, probe);
+  return std::isfinite(probe.dual) && rival.dual > probe.dual;
+}
+
 // OmtOptions::multilevel: the coarse-to-fine heights, taken if they leave no cell empty --
 // whatever the norm says: a start far off in a few cells can lose to Voronoi in the norm
 // while far nearer the solution elsewhere (lion-head's sites from mannequin-devil's density,
@@ -244,16 +255,14 @@ bool coarse_start(const Domain& domain, const PowerDiagrams& diagram, const Poin
                   Offsets& psi, OmtResult& r) {
   const int n = static_cast<int>(sites.rows());
   std::optional<Start> rival = rival_start(diagram, opt, r.target);
+  bool rival_taken = rival && probe_prefers_rival(domain, diagram, sites, opt, psi, r, *rival);
   Start s;
-  bool rival_taken = false;
-  const double plain = r.cells.empty_cells == 0 ? dual(psi.hi, psi.lo, r.cells, r.cells.mass - r.target) : 0;
-  if (rival && plain > 0 && std::abs(rival->dual / plain - 1) <= kNearPlain) {
-    const Start probe = coarse_to_fine_start(domain, diagram, sites, opt, r, kProbeRatio, false);
-    rival_taken = std::isfinite(probe.dual) && rival->dual > probe.dual;
-  }
   if (!rival_taken) {
     s = coarse_to_fine_start(domain, diagram, sites, opt, r, detail::kCoarseRatio, true);
-    rival_taken = rival && rival->dual > s.dual;
+    if (rival) {
+      rate_start(r.target, s);
+      rival_taken = rival->dual > s.dual;
+    }
   }
   if (rival_taken) s = std::move(*rival);
   if (rival_taken || !s.cells || s.cells->empty_cells > 0) r.levels = 1;  // the start is the rival or the plain one
