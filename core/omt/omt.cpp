@@ -225,12 +225,7 @@ std::optional<Start> rival_start(const PowerDiagrams& diagram, const OmtOptions&
 // three_peaks too.
 constexpr int kProbeRatio = 64;
 // The probe costs a fine diagram and the coarse solve (0.03 s of nefertiti x lion-head's
-// 0.22 s), so it runs only where the rival's D is within 15 % of the plain start's: near
-// copies, where both sit just below W2^2 (the six directions above: rival / plain 0.97..1.07),
-// not the unrelated shapes (0.55, 0.74, 1.37, or the plain start's D negative). It misses
-// mannequin-devil x remeshed's 12,977-site direction, whose plain start has D = -0.30: probed
-// too, that pair took 105 Newton iterations instead of 248 (bench/RESULTS.md, session 44).
-constexpr double kNearPlain = 0.15;
+// 0.22 s), so it runs only where detail::worth_probing says (bench/RESULTS.md, sessions 44-45).
 
 // Whether the rival beats the probe's start (false where the gate above keeps the probe from
 // running, or the probe's coarse solve fails: the coarse levels then decide).
@@ -238,7 +233,7 @@ bool probe_prefers_rival(const Domain& domain, const PowerDiagrams& diagram, con
                          const OmtOptions& opt, const Offsets& psi, OmtResult& r, const Start& rival) {
   if (r.cells.empty_cells > 0) return false;
   const double plain = dual(psi.hi, psi.lo, r.cells, r.cells.mass - r.target);
-  if (!(plain > 0 && std::abs(rival.dual / plain - 1) <= kNearPlain)) return false;
+  if (!detail::worth_probing(plain, rival.dual)) return false;
   Start probe = coarse_to_fine_start(domain, diagram, sites, opt, r, kProbeRatio, false);
   rate_start(r.target, probe);
   return std::isfinite(probe.dual) && rival.dual > probe.dual;
@@ -563,6 +558,20 @@ OmtResult solve(const Domain& domain, const Points& sites, const Eigen::VectorXd
 }
 
 }  // namespace
+
+// The gate on the probe. Near copies: rival / plain 0.97..1.07 in the six directions measured
+// in session 44; the unrelated shapes 0.55, 0.74, 1.37 and more, or a rival with empty cells.
+// A plain start whose dual is negative is far off (every start near the solution sits just
+// below W2^2 > 0): mannequin-devil x remeshed's 12,977-site direction (plain D = -0.30, the
+// rival's 4.7e-4) took 248 Newton iterations unprobed and 105 probed. Two of the 45 real
+// pairs' directions are probed for it and keep the coarse levels: lion-head x nefertiti
+// (+3 iterations, about +0.03 s) and mushroom x three_peaks (+5 on 30 sites).
+bool detail::worth_probing(double plain_dual, double rival_dual) {
+  constexpr double kNearPlain = 0.15;
+  if (!(rival_dual > 0)) return false;  // -inf: the rival leaves a cell empty
+  if (plain_dual < 0) return true;
+  return plain_dual > 0 && std::abs(rival_dual / plain_dual - 1) <= kNearPlain;
+}
 
 OmtResult solve_omt(const Domain& domain, const Points& sites, const Eigen::VectorXd& nu, const OmtOptions& opt) {
   return detail::with_plain_fallback(

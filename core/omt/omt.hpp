@@ -141,6 +141,11 @@ namespace detail {
 std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, const Points& sites,
                                                       const Eigen::VectorXd& nu, const OmtOptions& options,
                                                       OmtResult& r, int ratio, bool recurse);
+/// Whether the one-level probe runs before the coarse levels (omt.cpp, `coarse_start`), from
+/// the Kantorovich duals of the plain start and of OmtOptions::alternative_h: where the two
+/// agree within 15 % (a near copy: both just below W2^2 > 0), or where the plain start's is
+/// negative and the rival's positive (a plain start far off). The probe then decides.
+bool worth_probing(double plain_dual, double rival_dual);
 }  // namespace detail
 
 }  // namespace brenier::omt

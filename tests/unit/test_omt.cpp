@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <random>
 
@@ -1298,6 +1299,29 @@ TEST(Omt, ThePlanarStallWindowStopsNoSolveThatConvergesAndSaysWhenItStops) {
   EXPECT_FALSE(hurried.converged);
   EXPECT_GT(hurried.max_relative_error, o.tolerance);
   EXPECT_LT(hurried.iterations, plain.iterations);
+}
+
+TEST(Omt, TheProbeRunsForNearCopiesAndFarPlainStartsNotForUnrelatedShapes) {
+  // detail::worth_probing on the duals measured at the first transport of real directions
+  // (plain start, rival; bench/RESULTS.md, session 45).
+  const double inf = std::numeric_limits<double>::infinity();
+  // Near copies: both just below W2^2.
+  EXPECT_TRUE(omt::detail::worth_probing(0.001368, 0.001416));     // lion-head x deformed
+  EXPECT_TRUE(omt::detail::worth_probing(0.0004896, 0.000476));    // mannequin-devil x deformed
+  EXPECT_TRUE(omt::detail::worth_probing(0.0001226, 0.0001237));   // mannequin-devil x remeshed, 51,841 sites
+  EXPECT_TRUE(omt::detail::worth_probing(0.0003491, 0.0003703));   // lion-head-deformed x remeshed
+  // A plain start far off, a rival that leaves no cell empty: mannequin-devil x remeshed's
+  // 12,977 sites (and lion-head x nefertiti, where the probe then keeps the coarse levels).
+  EXPECT_TRUE(omt::detail::worth_probing(-0.3047, 0.000466));
+  EXPECT_TRUE(omt::detail::worth_probing(-0.8161, 0.002343));
+  // Unrelated shapes: the duals apart, or the rival with an empty cell.
+  EXPECT_FALSE(omt::detail::worth_probing(0.0009262, 0.00127));    // lion-head x mannequin-devil
+  EXPECT_FALSE(omt::detail::worth_probing(0.0008747, 0.0006483));  // the other direction
+  EXPECT_FALSE(omt::detail::worth_probing(0.0009538, 0.001265));   // lion-head x mannequin-devil-deformed
+  EXPECT_FALSE(omt::detail::worth_probing(0.1634, 0.002082));      // lion-head x three_peaks
+  EXPECT_FALSE(omt::detail::worth_probing(0.002955, 0.001506));    // mannequin-devil x nefertiti
+  EXPECT_FALSE(omt::detail::worth_probing(0.4544, -inf));          // lion-head x cylinder_locally_refined
+  EXPECT_FALSE(omt::detail::worth_probing(-0.2299, -inf));         // mannequin-devil x three_peaks
 }
 
 TEST(Omt, TheAlternativeStartReplacesTheCoarseToFineOneOnlyWhereItsDualIsHigher) {
