@@ -3,8 +3,10 @@
 // core/jobs code), and no input may take the server down.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <cstdlib>
 #include <fstream>
 #include <functional>
 #include <nlohmann/json.hpp>
@@ -44,6 +46,39 @@ constexpr double kSlowdown = 1;
 #endif
 
 namespace pb = ::brenier::v1;
+
+// Two meshes written as text (OBJ) by the same writer: the same lines, word for word, but
+// numbers may differ in their last bits (1e-12 relative to the unit domain). The service
+// runs a map on a pool whose idle cores it claims mid-solve; a CI run (session 45) had one
+// lion-head disk map differ from the engine's by at most 3.5e-11 in every texture
+// coordinate, which bit-for-bit comparison failed. Numbers are held to 1e-9.
+void expect_same_mesh_text(const std::string& got, const std::string& want, const std::string& what) {
+  std::istringstream a(got), b(want);
+  std::string la, lb;
+  int line = 0;
+  double worst = 0;
+  while (true) {
+    const bool more_a = static_cast<bool>(std::getline(a, la)), more_b = static_cast<bool>(std::getline(b, lb));
+    ASSERT_EQ(more_a, more_b) << what << ": the texts end at different lines (" << line << ")";
+    if (!more_a) break;
+    ++line;
+    std::istringstream wa(la), wb(lb);
+    std::string xa, xb;
+    while (wa >> xa) {
+      ASSERT_TRUE(static_cast<bool>(wb >> xb)) << what << ", line " << line << ": " << la << " vs " << lb;
+      char* end_a = nullptr;
+      char* end_b = nullptr;
+      const double va = std::strtod(xa.c_str(), &end_a), vb = std::strtod(xb.c_str(), &end_b);
+      const bool numbers = la[0] == 'v' && *end_a == '\0' && *end_b == '\0' && end_a != xa.c_str();
+      if (numbers)
+        worst = std::max(worst, std::abs(va - vb));
+      else
+        ASSERT_EQ(xa, xb) << what << ", line " << line;
+    }
+    ASSERT_FALSE(static_cast<bool>(wb >> xb)) << what << ", line " << line << ": " << la << " vs " << lb;
+  }
+  EXPECT_LE(worst, 1e-9) << what << ": the largest difference of a vertex number";
+}
 using client::Client;
 using Clock = std::chrono::steady_clock;
 
@@ -1145,7 +1180,7 @@ TEST(ServiceRealMeshes, UploadsAgreeWithTheOfflineValidatorAndMapsWithTheEngine)
     r.domain = domain == pb::SPHERE ? jobs::Domain::kSphere : jobs::Domain::kDisk;
     r.method = method == pb::AREA_PRESERVING ? jobs::MapMethod::kAreaPreserving : jobs::MapMethod::kConformal;
     const jobs::MapOutcome local = jobs::run_map(mesh::load_mesh(path), file, r);
-    EXPECT_EQ(c.fetch(j.id()), jobs::map_mesh_bytes(local, mesh::Format::kObj)) << file;
+    expect_same_mesh_text(c.fetch(j.id()), jobs::map_mesh_bytes(local, mesh::Format::kObj), file);
     EXPECT_EQ(nlohmann::json::parse(c.fetch(j.id(), "report"))["quality"]["flipped_faces"], 0) << file;
   }
 }
