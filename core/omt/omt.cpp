@@ -224,11 +224,10 @@ std::optional<Start> rival_start(const PowerDiagrams& diagram, const OmtOptions&
 // A 1/512 subset's start fell below the rival on lion-head x mannequin-devil and mushroom x
 // three_peaks too.
 constexpr int kProbeRatio = 64;
-// The probe costs a fine diagram and the coarse solve (0.03 s of nefertiti x lion-head's
-// 0.22 s), so it runs only where detail::worth_probing says (bench/RESULTS.md, sessions 44-45).
-
-// Whether the rival beats the probe's start (false where detail::worth_probing keeps the
-// probe from running, or the probe's coarse solve fails: the coarse levels then decide).
+// Whether the rival beats the probe's start. The probe costs a fine diagram and its coarse
+// solve (0.03 s of nefertiti x lion-head's 0.22 s), so it runs only where
+// detail::worth_probing says (bench/RESULTS.md, sessions 44-45); false where it does not run,
+// or where its coarse solve fails: the coarse levels then decide.
 bool probe_prefers_rival(const Domain& domain, const PowerDiagrams& diagram, const Points& sites,
                          const OmtOptions& opt, const Offsets& psi, OmtResult& r, const Start& rival) {
   if (r.cells.empty_cells > 0) return false;

@@ -48,7 +48,7 @@ constexpr double kSlowdown = 1;
 namespace pb = ::brenier::v1;
 
 // Two meshes written as text (OBJ) by the same writer: the same lines, word for word, but
-// numbers may differ in their last bits (1e-12 relative to the unit domain). The service
+// the numbers of vertex lines (v, vt) may differ in their last digits. The service
 // runs a map on a pool whose idle cores it claims mid-solve; a CI run (session 45) had one
 // lion-head disk map differ from the engine's by at most 3.5e-11 in every texture
 // coordinate, which bit-for-bit comparison failed. Numbers are held to 1e-9.
