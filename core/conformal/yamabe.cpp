@@ -138,7 +138,7 @@ struct KeptFactor {
     row_of_vertex = index;
     for (int v = 0; v < static_cast<int>(index.size()); ++v)
       if (index[v] >= 0) vertex_of_row[index[v]] = v;
-    llt.compute(H);
+    with_library_loops_serial([&] { llt.compute(H); });
     use_llt = llt.info() == Eigen::Success;
     if (!use_llt) ldlt.compute(H);
     ready = use_llt || ldlt.info() == Eigen::Success;

@@ -81,7 +81,7 @@ namespace {
 void factor(Cholesky& c, const Sparse& A, const char* what) {
   c.setMode(Eigen::CholmodSupernodalLLt);
   c.cholmod().print = 0;
-  c.compute(A);
+  with_library_loops_serial([&] { c.compute(A); });
   if (c.info() != Eigen::Success)
     fail(ErrorCode::kInternal, std::string("heat geodesics: the ") + what + " system is not positive definite");
 }

@@ -331,9 +331,12 @@ class FaceNewton {
         slots_[k * 36 + local] = static_cast<int>(std::lower_bound(begin, end, r) - rows);
       });
     single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
-    // Supernodal from 100K unknowns: the 2x2 blocks of each vertex fill more than the
-    // transport's Hessian does (100K vertices: 2.6 s a step simplicial; figures in RESULTS).
-    llt_.setMode(n_ >= 100000 ? Eigen::CholmodSupernodalLLt : Eigen::CholmodSimplicialLLt);
+    // Supernodal at every size: the 2x2 blocks of each vertex fill more than the transport's
+    // Hessian does. (Supernodal lost below 100K unknowns only while CHOLMOD's per-supernode
+    // OpenMP teams woke threads, before with_library_loops_serial: mannequin-devil's
+    // refinement, 26K unknowns, 5.2-5.4 s simplicial against 3.6-3.7 s supernodal now;
+    // lion-head 1.01 against 0.74 s; bench/RESULTS.md, session 46.)
+    llt_.setMode(Eigen::CholmodSupernodalLLt);
     llt_.cholmod().print = 0;
     // The pattern is analysed once per refinement and factored at every step, so a nested
     // dissection ordering pays: CHOLMOD's NESDIS left 13.7M entries in the 100K-vertex disk
@@ -398,7 +401,7 @@ class FaceNewton {
     const double shift = 1e-9 * H_.diagonal().sum() / n_;
     for (int i = 0; i < n_; ++i) H_.coeffRef(i, i) += shift;
     if (!analyzed_) llt_.analyzePattern(H_), analyzed_ = true;
-    llt_.factorize(H_);
+    with_library_loops_serial([&] { llt_.factorize(H_); });
     if (llt_.info() != Eigen::Success) return 0;
     const double E0 = before = energy(X, theta);
     const Eigen::VectorXd d = -llt_.solve(g);

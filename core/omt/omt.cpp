@@ -375,7 +375,7 @@ class Directions {
 
  private:
   void factor(const Eigen::SparseMatrix<double>& H) {
-    llt_.compute(H);
+    with_library_loops_serial([&] { llt_.compute(H); });
     if (llt_.info() != Eigen::Success)
       fail(ErrorCode::kNotConverged, "the OMT Hessian is singular at iteration " + std::to_string(r_.iterations) +
                                          " (a cell without neighbours inside the domain)");

@@ -6,10 +6,13 @@
 
 #include <omp.h>
 
+#include <Eigen/CholmodSupport>
+#include <Eigen/SparseCore>
 #include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <stdexcept>
 #include <thread>
 #include <vector>
 
@@ -90,4 +93,80 @@ TEST(TakeIdleWorkers, TheLastTaskGetsTheFinishedWorkersCoresOnce) {
   EXPECT_EQ(teams[3], 4);
   for (int k = 0; k < 3; ++k) EXPECT_EQ(teams[k], 1) << "task " << k;
   EXPECT_EQ(omp_get_max_threads(), caller) << "the caller's setting is restored";
+}
+
+namespace {
+
+// The team size a library's `#pragma omp parallel num_threads(4)` gets where it is called.
+int library_team() {
+  int team = 0;
+#pragma omp parallel num_threads(4)
+  {
+#pragma omp single
+    team = omp_get_num_threads();
+  }
+  return team;
+}
+
+// A supernodal factorization of a grid Laplacian (n x n unknowns, a Dirichlet boundary)
+// solved for one right-hand side.
+Eigen::VectorXd grid_solve(int n) {
+  std::vector<Eigen::Triplet<double>> t;
+  auto id = [n](int i, int j) { return i * n + j; };
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) {
+      t.emplace_back(id(i, j), id(i, j), 4.0 + 1e-3 * ((i * 7 + j * 3) % 11));
+      if (i + 1 < n) t.emplace_back(id(i, j), id(i + 1, j), -1.0), t.emplace_back(id(i + 1, j), id(i, j), -1.0);
+      if (j + 1 < n) t.emplace_back(id(i, j), id(i, j + 1), -1.0), t.emplace_back(id(i, j + 1), id(i, j), -1.0);
+    }
+  Eigen::SparseMatrix<double> A(n * n, n * n);
+  A.setFromTriplets(t.begin(), t.end());
+  brenier::single_threaded_blas();
+  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt;
+  llt.cholmod().print = 0;
+  llt.compute(A);
+  EXPECT_EQ(llt.info(), Eigen::Success);
+  return llt.solve(Eigen::VectorXd::LinSpaced(n * n, -1.0, 1.0));
+}
+
+}  // namespace
+
+// with_library_loops_serial: the OpenMP teams a library opens inside f get one thread (they
+// are nested under a team of two), CHOLMOD's factor comes out bit for bit the same, f's
+// exception reaches the caller, and called where teams are already nested it just runs f.
+TEST(LibraryLoopsSerial, NestedTeamsGetOneThreadAndResultsDoNotChange) {
+  if (omp_get_max_active_levels() > 1) GTEST_SKIP() << "OMP_MAX_ACTIVE_LEVELS lets nested teams run in parallel";
+  ASSERT_EQ(library_team(), 4) << "outside, a library's team has the threads it asks for";
+  int inside = 0, calls = 0;
+  brenier::with_library_loops_serial([&] {
+    inside = library_team();
+    ++calls;
+  });
+  EXPECT_EQ(inside, 1);
+  EXPECT_EQ(calls, 1);
+
+  const Eigen::VectorXd plain = grid_solve(150);
+  Eigen::VectorXd serial;
+  brenier::with_library_loops_serial([&] { serial = grid_solve(150); });
+  ASSERT_EQ(serial.size(), plain.size());
+  EXPECT_TRUE(serial == plain) << "max difference " << (serial - plain).cwiseAbs().maxCoeff();
+
+  try {
+    brenier::with_library_loops_serial([] { throw std::runtime_error("the factor is not positive definite"); });
+    ADD_FAILURE() << "the exception was lost";
+  } catch (const std::runtime_error& e) {
+    EXPECT_STREQ(e.what(), "the factor is not positive definite");
+  }
+
+  int nested_calls = 0, nested_team = 0;
+#pragma omp parallel num_threads(2)
+  {
+#pragma omp single
+    brenier::with_library_loops_serial([&] {
+      ++nested_calls;
+      nested_team = library_team();
+    });
+  }
+  EXPECT_EQ(nested_calls, 1);
+  EXPECT_EQ(nested_team, 1);
 }
