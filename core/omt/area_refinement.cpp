@@ -1,6 +1,5 @@
 #include "omt/area_refinement.hpp"
 
-#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -11,6 +10,7 @@
 #include "common/check.hpp"
 #include "common/parallel.hpp"
 #include "mesh/geometry.hpp"
+#include "numeric/psd.hpp"
 #include "omt/barrier_energy.hpp"
 #include "omt/newton_step.hpp"
 
@@ -40,13 +40,6 @@ struct Local {
   Mat6 H;
 };
 
-// The symmetric matrix H with its negative eigenvalues set to zero.
-template <int N>
-Eigen::Matrix<double, N, N> clamped(const Eigen::Matrix<double, N, N>& H) {
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, N, N>> eig(H);
-  return eig.eigenvectors() * eig.eigenvalues().cwiseMax(0.0).asDiagonal() * eig.eigenvectors().transpose();
-}
-
 // The energy's derivatives in D = det J and T = |J|_F^2, eps = 0:
 //   e(D, T) = w [theta (D + 1/D) + (1 - theta) T / D].
 struct Scalars {
@@ -74,8 +67,8 @@ struct PlaneGeometry {
     return D > 0 ? scalars(f.weight, theta, D, J.squaredNorm()).e : std::numeric_limits<double>::infinity();
   }
   // The gradient and the Hessian projected onto the positive semi-definite cone (Teran et
-  // al. 2005), in J (4x4, where the projection is cheap), pulled back through the linear
-  // x -> vec J.
+  // al. 2005), in J (4x4, where the energy's invariance under rotations gives the projection
+  // in closed form: numeric::clamped_isotropic_2d), pulled back through the linear x -> vec J.
   Local derivatives(const mesh::Vertices& X, const detail::BarrierFace& f, double theta) const {
     const Eigen::Matrix2d& R = f.ref_inv;
     const Eigen::Matrix2d J = edges(X, f) * R;
@@ -90,8 +83,9 @@ struct PlaneGeometry {
     HD(1, 2) = HD(2, 1) = -1;
     const V4 gT = 2 * j;  // dT / d vec J; d^2 T = 2 I
     const V4 gJ = c.eD * cof + c.eT * gT;
-    const M4 HJ = clamped<4>(c.eDD * cof * cof.transpose() + c.eDT * (cof * gT.transpose() + gT * cof.transpose()) +
-                             c.eD * HD + 2 * c.eT * M4::Identity());
+    const M4 HJ = numeric::clamped_isotropic_2d(
+        J, c.eDD * cof * cof.transpose() + c.eDT * (cof * gT.transpose() + gT * cof.transpose()) + c.eD * HD +
+               2 * c.eT * M4::Identity());
     // vec J = A x, x = (a, b, c): J(i, k) = sum_m M(i, m) R(m, k).
     Eigen::Matrix<double, 4, 6> A = Eigen::Matrix<double, 4, 6>::Zero();
     for (int i = 0; i < 2; ++i)
@@ -222,7 +216,7 @@ struct SphereGeometry {
     for (int p = 0; p < 3; ++p) P.block<3, 2>(3 * p, 2 * p) = basis[f.v[p]];
     Mat6 H = P.transpose() * H9 * P;
     for (int p = 0; p < 3; ++p) H.block<2, 2>(2 * p, 2 * p) -= x.segment<3>(3 * p).dot(g9.segment<3>(3 * p)) * Eigen::Matrix2d::Identity();
-    return {P.transpose() * g9, clamped<6>(H)};
+    return {P.transpose() * g9, numeric::clamped<6>(H)};
   }
   // A function of the corners (a, b, c) with its gradient and Hessian in their nine coordinates.
   struct Scalar9 {
