@@ -123,7 +123,14 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   // (3) the OMT map tau from the uniform disk to (p, nu).
   Points sites = out.conformal.positions.leftCols(2);
   OmtOptions transport = opt.omt;
-  if (opt.multilevel_from > 0 && nv >= opt.multilevel_from) transport.multilevel = true;
+  // Above multilevel_from the coarse-to-fine start is taken without the probe of the plain
+  // start's first Newton step (OmtOptions::multilevel_probe), which is there for the
+  // distances' near-uniform measures: a conformal image's masses vary by orders of magnitude,
+  // so that step is damped and wasted. The 99,731-vertex disk map (lion-head subdivided):
+  // 27 -> 26 Newton iterations, conformal map and transport 6.97 -> 5.47 s; the real disk
+  // meshes forced onto the coarse start took as many iterations or one fewer without the
+  // probe (bench/RESULTS.md, session 47).
+  if (opt.multilevel_from > 0 && nv >= opt.multilevel_from) transport.multilevel = true, transport.multilevel_probe = false;
   out.omt = transport_to_mesh_sites(m, Domain::unit_disk(), sites, nu, transport);
   // (4) tau^{-1} o phi: each vertex goes to the centroid of its cell W_i = tau^{-1}(p_i).
   out.positions = mesh::Vertices::Zero(nv, 3);

@@ -1,8 +1,9 @@
 // brenier-compute omt-bench: the semi-discrete OT solver on synthetic problems (issue 4's
 // benchmark): the uniform disk or square to N random sites, uniform in the domain, with
 // equal masses or masses proportional to exp(-8 |p|^2) (ratio about 3000 on the disk).
-// BENCH_TRACE=1 in the environment prints each Newton iteration's error and clock time to
-// stderr (as bench_pair does).
+// --multilevel times the coarse-to-fine start (with the plain start's probe, or without it:
+// --no-probe) on the same problem. BENCH_TRACE=1 in the environment prints each Newton
+// iteration's error and clock time to stderr (as bench_pair does).
 #include <sys/resource.h>
 
 #include <chrono>
@@ -27,6 +28,7 @@ struct BenchOptions {
   unsigned seed = 1;
   double tolerance = 1e-8;
   bool json = false;
+  bool multilevel = false, probe = true;
 };
 
 int run_bench(const BenchOptions& o) {
@@ -42,6 +44,8 @@ int run_bench(const BenchOptions& o) {
   for (int i = 0; i < o.sites; ++i) nu[i] = o.masses == "equal" ? 1.0 : std::exp(-8 * y.row(i).squaredNorm());
   omt::OmtOptions opt;
   opt.tolerance = o.tolerance;
+  opt.multilevel = o.multilevel;
+  opt.multilevel_probe = o.probe;
   auto t0 = std::chrono::steady_clock::now();
   if (std::getenv("BENCH_TRACE"))
     opt.progress = [t0](int it, double e) {
@@ -63,6 +67,8 @@ int run_bench(const BenchOptions& o) {
                       {"converged", r.converged},
                       {"empty_cells", r.cells.empty_cells},
                       {"factorizations", r.factorizations},
+                     {"multilevel", o.multilevel},
+                     {"levels", r.levels},
                       {"linear_iterations", r.linear_iterations},
                       {"mass_ratio", r.target.maxCoeff() / r.target.minCoeff()},
                       {"peak_rss_mb", ru.ru_maxrss / 1024.0}};
@@ -85,6 +91,8 @@ void add_omt_bench(CLI::App& app, Action& action) {
   cmd->add_option("--masses", o->masses, "equal or gaussian (exp(-8|p|^2))")->check(CLI::IsMember({"equal", "gaussian"}));
   cmd->add_option("--seed", o->seed, "random seed");
   cmd->add_option("--tolerance", o->tolerance, "max relative cell-mass error")->check(CLI::PositiveNumber);
+  cmd->add_flag("--multilevel", o->multilevel, "coarse-to-fine start (as the maps and distances use)");
+  cmd->add_flag("--no-probe{false}", o->probe, "with --multilevel: take the coarse start without probing the plain one");
   cmd->add_flag("--json", o->json, "print one JSON object");
   cmd->callback([o, &action] { action = [o] { return run_bench(*o); }; });
 }
