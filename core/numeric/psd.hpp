@@ -28,8 +28,8 @@ Eigen::Matrix<double, N, N> clamped(const Eigen::Matrix<double, N, N>& H) {
 /// J = E I + K R90 + F P + G S with I, R90 = [0 -1; 1 0], P = [1 0; 0 -1], S = [0 1; 1 0], so
 /// w ~ E I + K R90, t ~ E R90 - K I, a ~ F P + G S, f ~ F S - G P. Where J is conformal (F = G
 /// = 0) any orthonormal pair of the anti-conformal plane serves: P and S. The 2x2 block is
-/// clamped in closed form. About a tenth of the cost of the eigensolver above (the area
-/// refinement's plane derivatives: 0.12 s per step on 200K faces before).
+/// clamped in closed form. An eighth of the eigensolver's cost: 0.11 against 0.8-0.9 us a call
+/// on the refinement's Hessians (bench/bench_psd.cpp; bench/RESULTS.md, session 47).
 inline Eigen::Matrix4d clamped_isotropic_2d(const Eigen::Matrix2d& J, const Eigen::Matrix4d& H) {
   const double E = 0.5 * (J(0, 0) + J(1, 1)), K = 0.5 * (J(1, 0) - J(0, 1));
   const double F = 0.5 * (J(0, 0) - J(1, 1)), G = 0.5 * (J(1, 0) + J(0, 1));
@@ -46,7 +46,7 @@ inline Eigen::Matrix4d clamped_isotropic_2d(const Eigen::Matrix2d& J, const Eige
   B *= k;
   const Eigen::Matrix4d M = B.transpose() * H * B;
   Eigen::Matrix4d P = Eigen::Matrix4d::Zero();
-  // The 2x2 block [p s; s u]: eigenvalues m +- d.
+  // The 2x2 block [p o; o u]: eigenvalues m +- d.
   const double p = M(0, 0), o = 0.5 * (M(0, 1) + M(1, 0)), u = M(1, 1);
   const double m = 0.5 * (p + u), d = std::hypot(0.5 * (p - u), o);
   if (m - d >= 0) {
