@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "numeric/psd.hpp"
+#include "omt/barrier_energy.hpp"
 
 namespace {
 
@@ -26,16 +27,11 @@ std::vector<Case> cases() {
   while (out.size() < 4096) {
     Eigen::Matrix2d J;
     J << 1 + 0.3 * N(rng), 0.3 * N(rng), 0.3 * N(rng), 1 + 0.3 * N(rng);
-    const double D = J.determinant(), T = J.squaredNorm(), th = 0.999, s = 1 - th;
+    const double D = J.determinant();
     if (!(D > 0.05)) continue;
-    const double eD = th * (1 - 1 / (D * D)) - s * T / (D * D), eT = s / D;
-    const double eDD = 2 * th / (D * D * D) + 2 * s * T / (D * D * D), eDT = -s / (D * D);
-    const Eigen::Vector4d j(J(0, 0), J(1, 0), J(0, 1), J(1, 1)), gD(J(1, 1), -J(0, 1), -J(1, 0), J(0, 0));
-    Eigen::Matrix4d HD = Eigen::Matrix4d::Zero();
-    HD(0, 3) = HD(3, 0) = 1;
-    HD(1, 2) = HD(2, 1) = -1;
-    out.push_back({J, eDD * gD * gD.transpose() + eDT * (gD * (2 * j).transpose() + 2 * j * gD.transpose()) +
-                          eD * HD + 2 * eT * Eigen::Matrix4d::Identity()});
+    const brenier::omt::detail::RefinementScalars c =
+        brenier::omt::detail::refinement_scalars(1, 0.999, D, J.squaredNorm());
+    out.push_back({J, brenier::numeric::isotropic_derivatives_2d(J, c.eD, c.eT, c.eDD, c.eDT).H});
   }
   return out;
 }

@@ -16,6 +16,30 @@ Eigen::Matrix<double, N, N> clamped(const Eigen::Matrix<double, N, N>& H) {
   return eig.eigenvectors() * eig.eigenvalues().cwiseMax(0.0).asDiagonal() * eig.eigenvectors().transpose();
 }
 
+/// The gradient and Hessian in vec J = (J00, J10, J01, J11) of an energy psi(D, T) of a 2x2 J,
+/// D = det J, T = |J|_F^2, from psi's partial derivatives (eTT = 0: the refinement's energy):
+///   g = psi_D cof J + psi_T 2 vec J,
+///   H = psi_DD c c^T + psi_DT (c t^T + t c^T) + psi_D d^2 D + 2 psi_T I + psi_TT t t^T,
+/// c = cof J = dD / d vec J, t = dT / d vec J, d^2 D the constant [0 0 0 1; 0 0 -1 0; ...].
+struct IsotropicDerivatives2d {
+  Eigen::Vector4d g;
+  Eigen::Matrix4d H;
+};
+inline IsotropicDerivatives2d isotropic_derivatives_2d(const Eigen::Matrix2d& J, double eD, double eT, double eDD,
+                                                       double eDT, double eTT = 0) {
+  const Eigen::Vector4d j(J(0, 0), J(1, 0), J(0, 1), J(1, 1));
+  const Eigen::Vector4d cof(J(1, 1), -J(0, 1), -J(1, 0), J(0, 0));
+  Eigen::Matrix4d HD = Eigen::Matrix4d::Zero();
+  HD(0, 3) = HD(3, 0) = 1;
+  HD(1, 2) = HD(2, 1) = -1;
+  const Eigen::Vector4d gT = 2 * j;
+  IsotropicDerivatives2d d{eD * cof + eT * gT, eDD * cof * cof.transpose() +
+                                                   eDT * (cof * gT.transpose() + gT * cof.transpose()) + eD * HD +
+                                                   2 * eT * Eigen::Matrix4d::Identity()};
+  if (eTT != 0) d.H += eTT * gT * gT.transpose();
+  return d;
+}
+
 /// The same projection, in closed form, for H the Hessian in vec J = (J00, J10, J01, J11) of
 /// an energy of a 2x2 J that depends on J's singular values alone (such as one of det J and
 /// |J|_F^2), det J > 0. Such an energy does not change under J -> R1 J R2 (R1, R2 rotations),

@@ -130,7 +130,10 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   // 27 -> 26 Newton iterations, conformal map and transport 6.97 -> 5.47 s; the real disk
   // meshes forced onto the coarse start took as many iterations or one fewer without the
   // probe (bench/RESULTS.md, session 47).
-  if (opt.multilevel_from > 0 && nv >= opt.multilevel_from) transport.multilevel = true, transport.multilevel_probe = false;
+  if (opt.multilevel_from > 0 && nv >= opt.multilevel_from) {
+    transport.multilevel = true;
+    transport.multilevel_probe = false;
+  }
   out.omt = transport_to_mesh_sites(m, Domain::unit_disk(), sites, nu, transport);
   // (4) tau^{-1} o phi: each vertex goes to the centroid of its cell W_i = tau^{-1}(p_i).
   out.positions = mesh::Vertices::Zero(nv, 3);

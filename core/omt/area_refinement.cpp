@@ -40,16 +40,9 @@ struct Local {
   Mat6 H;
 };
 
-// The energy's derivatives in D = det J and T = |J|_F^2, eps = 0:
-//   e(D, T) = w [theta (D + 1/D) + (1 - theta) T / D].
-struct Scalars {
-  double e, eD, eT, eDD, eDT;  // eTT = 0
-};
-Scalars scalars(double w, double theta, double D, double T) {
-  const double s = 1 - theta;
-  return {w * (theta * (D + 1 / D) + s * T / D), w * (theta * (1 - 1 / (D * D)) - s * T / (D * D)), w * s / D,
-          w * (2 * theta / (D * D * D) + 2 * s * T / (D * D * D)), -w * s / (D * D)};
-}
+// The energy's derivatives in D = det J and T = |J|_F^2 (barrier_energy.hpp).
+using Scalars = detail::RefinementScalars;
+constexpr auto scalars = detail::refinement_scalars;
 
 // The plane: a face's corners are rows of X (x, y), J = [b - a, c - a] R with R the
 // reference's inverse edge matrix, D = det J.
@@ -74,18 +67,9 @@ struct PlaneGeometry {
     const Eigen::Matrix2d J = edges(X, f) * R;
     const double D = J.determinant(), T = J.squaredNorm();
     const Scalars c = scalars(f.weight, theta, D, T);
-    using V4 = Eigen::Vector4d;
-    using M4 = Eigen::Matrix4d;
-    const V4 j(J(0, 0), J(1, 0), J(0, 1), J(1, 1));      // vec J, column-major
-    const V4 cof(J(1, 1), -J(0, 1), -J(1, 0), J(0, 0));  // dD / d vec J
-    M4 HD = M4::Zero();                                  // d^2 D / d vec J^2
-    HD(0, 3) = HD(3, 0) = 1;
-    HD(1, 2) = HD(2, 1) = -1;
-    const V4 gT = 2 * j;  // dT / d vec J; d^2 T = 2 I
-    const V4 gJ = c.eD * cof + c.eT * gT;
-    const M4 HJ = numeric::clamped_isotropic_2d(
-        J, c.eDD * cof * cof.transpose() + c.eDT * (cof * gT.transpose() + gT * cof.transpose()) + c.eD * HD +
-               2 * c.eT * M4::Identity());
+    const numeric::IsotropicDerivatives2d d = numeric::isotropic_derivatives_2d(J, c.eD, c.eT, c.eDD, c.eDT);
+    const Eigen::Vector4d& gJ = d.g;
+    const Eigen::Matrix4d HJ = numeric::clamped_isotropic_2d(J, d.H);
     // vec J = A x, x = (a, b, c): J(i, k) = sum_m M(i, m) R(m, k).
     Eigen::Matrix<double, 4, 6> A = Eigen::Matrix<double, 4, 6>::Zero();
     for (int i = 0; i < 2; ++i)

@@ -38,4 +38,15 @@ inline BarrierFace barrier_face(int i, int j, int k, const Eigen::Vector3d& a, c
   return f;
 }
 
+// The area refinement's energy of a face (eps = 0) and its derivatives in D = det J and
+// T = |J|_F^2:  e(D, T) = w [theta (D + 1/D) + (1 - theta) T / D]  (eTT = 0).
+struct RefinementScalars {
+  double e, eD, eT, eDD, eDT;
+};
+inline RefinementScalars refinement_scalars(double w, double theta, double D, double T) {
+  const double s = 1 - theta;
+  return {w * (theta * (D + 1 / D) + s * T / D), w * (theta * (1 - 1 / (D * D)) - s * T / (D * D)), w * s / D,
+          w * (2 * theta / (D * D * D) + 2 * s * T / (D * D * D)), -w * s / (D * D)};
+}
+
 }  // namespace brenier::omt::detail

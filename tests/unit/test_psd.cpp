@@ -10,18 +10,6 @@
 namespace brenier::numeric {
 namespace {
 
-// The Hessian in vec J (column-major) of psi(D, T), D = det J, T = |J|_F^2, from the partial
-// derivatives psi_D, psi_T, psi_DD, psi_DT, psi_TT: it is isotropic whatever their values.
-Eigen::Matrix4d energy_hessian(const Eigen::Matrix2d& J, double eD, double eT, double eDD, double eDT, double eTT) {
-  const Eigen::Vector4d j(J(0, 0), J(1, 0), J(0, 1), J(1, 1));
-  const Eigen::Vector4d gD(J(1, 1), -J(0, 1), -J(1, 0), J(0, 0)), gT = 2 * j;
-  Eigen::Matrix4d HD = Eigen::Matrix4d::Zero();
-  HD(0, 3) = HD(3, 0) = 1;
-  HD(1, 2) = HD(2, 1) = -1;
-  return eDD * gD * gD.transpose() + eDT * (gD * gT.transpose() + gT * gD.transpose()) + eTT * gT * gT.transpose() +
-         eD * HD + 2 * eT * Eigen::Matrix4d::Identity();
-}
-
 TEST(Psd, IsotropicClosedFormMatchesTheEigendecomposition) {
   std::mt19937 rng(7);
   std::normal_distribution<double> N(0, 1);
@@ -34,7 +22,7 @@ TEST(Psd, IsotropicClosedFormMatchesTheEigendecomposition) {
     if (trial % 5 == 2) J << 40 * N(rng), N(rng), 0.01 * N(rng), 0.02 * N(rng);  // a sliver
     if (J.determinant() <= 0) J.col(0) *= -1;
     ASSERT_GT(J.determinant(), 0);
-    const Eigen::Matrix4d H = energy_hessian(J, N(rng), N(rng), N(rng), N(rng), N(rng));
+    const Eigen::Matrix4d H = isotropic_derivatives_2d(J, N(rng), N(rng), N(rng), N(rng), N(rng)).H;
     const Eigen::Matrix4d want = clamped<4>(H), got = clamped_isotropic_2d(J, H);
     const double scale = H.cwiseAbs().maxCoeff();
     EXPECT_LE((got - want).cwiseAbs().maxCoeff(), 1e-11 * scale) << "J =\n" << J << "\nH =\n" << H;
