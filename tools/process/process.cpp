@@ -51,18 +51,13 @@ void reexec_with_runtime_settings(char** argv) {
     ::setenv("OPENBLAS_NUM_THREADS", "1", 0);
     changed = true;
   }
-  // Transparent huge pages for malloc's memory (glibc >= 2.35 reads this tunable at start;
-  // the kernel's default THP mode, "madvise", gives them only to memory that asks). The
-  // regular triangulations, cell arrays and CHOLMOD factors of a large transport are
-  // touched all over: at 1M sites this took the page faults from 1.04M to ~38K and the
-  // solve from 44.6-57 s to 32-40 s (bench/RESULTS.md). A user's own setting of it is kept.
-  const char* tunables = std::getenv("GLIBC_TUNABLES");
-  const std::string have = tunables ? tunables : "";
-  if (have.find("glibc.malloc.hugetlb") == std::string::npos) {
-    const std::string want = (have.empty() ? "" : have + ":") + "glibc.malloc.hugetlb=1";
-    ::setenv("GLIBC_TUNABLES", want.c_str(), 1);
-    changed = true;
-  }
+  // No transparent huge pages are asked for (glibc.malloc.hugetlb stays the user's). Session
+  // 27 asked for them and measured the 1M transport 25-30 % faster; on this VM since (a
+  // Firecracker guest whose free-page reporting hands freed 8 MB blocks back to the host),
+  // a fresh 2 MB page costs ~6 ms to fault (4.6 s for a first 400 MB), and the same commands
+  // ran slower with them: 1M equal masses 47.6-49.7 s against 31.4-33.2 s, the 100K disk
+  // map 14.2-15.5 s against 11.8-13.2 s, 100K Gaussian 5.2-5.3 s against 4.2-4.7 s
+  // (bench/RESULTS.md, session 48). GLIBC_TUNABLES=glibc.malloc.hugetlb=1 turns them on.
   if (changed) ::execv("/proc/self/exe", argv);  // returns only on failure: then run as we are
 }
 

@@ -22,10 +22,9 @@ bool choose_blas_kernels();
 /// ordering): faster transports on 2 cores (bench/RESULTS.md), and the spinning no longer
 /// takes cores from other jobs and RPC threads of the server. Returns if the exec
 /// fails.
-/// It also sets OPENBLAS_NUM_THREADS=1 unless set, and asks glibc's malloc for transparent
-/// huge pages (GLIBC_TUNABLES glibc.malloc.hugetlb=1) unless that tunable is set (see
-/// process.cpp), and OPENBLAS_CORETYPE where choose_blas_kernels() says so; it re-executes
-/// when any of these was missing.
+/// It also sets OPENBLAS_NUM_THREADS=1 unless set, and OPENBLAS_CORETYPE where
+/// choose_blas_kernels() says so; it re-executes when any of these was missing. It leaves
+/// malloc's transparent huge pages off (process.cpp says why).
 void reexec_with_runtime_settings(char** argv);
 
 /// Called first in main(): glibc's malloc keeps up to 32 MB freed at the top of each arena
