@@ -103,6 +103,23 @@ bool Domain::contains(double x, double y, double slack) const {
   return true;
 }
 
+namespace {
+
+// The points' indices in Hilbert order: plain (no random rounds of CGAL's spatial_sort), so
+// deterministic.
+std::vector<int> hilbert_order(const Points& points) {
+  std::vector<int> order(points.rows());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
+  // (A lambda's own type, not a std::function: the sort reads the map O(n log n) times.)
+  auto at = [&points](int i) { return K::Point_2(points(i, 0), points(i, 1)); };
+  using Map = boost::function_property_map<decltype(at), int, K::Point_2>;
+  const CGAL::Spatial_sort_traits_adapter_2<K, Map> traits{Map{at}};
+  CGAL::hilbert_sort(order.begin(), order.end(), traits);
+  return order;
+}
+
+}  // namespace
+
 PowerDiagrams::PowerDiagrams(Domain domain, Points sites, bool check_distinct)
     : domain_(std::move(domain)), sites_(std::move(sites)) {
   const int n = static_cast<int>(sites_.rows());
@@ -122,14 +139,7 @@ PowerDiagrams::PowerDiagrams(Domain domain, Points sites, bool check_distinct)
   }
   // The sites never move between diagrams (only their heights do), so their Hilbert order
   // -- which makes each insertion's point location walk a step or two -- is computed once.
-  order_.resize(n);
-  for (int i = 0; i < n; ++i) order_[i] = i;
-  // (A lambda's own type, not a std::function: the sort reads the map O(n log n) times.)
-  auto at = [this](int i) { return K::Point_2(sites_(i, 0), sites_(i, 1)); };
-  using Map = boost::function_property_map<decltype(at), int, K::Point_2>;
-  const CGAL::Spatial_sort_traits_adapter_2<K, Map> traits{Map{at}};
-  // Plain Hilbert order (no random rounds of CGAL's spatial_sort): deterministic.
-  CGAL::hilbert_sort(order_.begin(), order_.end(), traits);
+  order_ = hilbert_order(sites_);
 }
 
 Eigen::VectorXd PowerDiagrams::offsets(const Eigen::VectorXd& h) const {
@@ -428,40 +438,63 @@ std::vector<int> PowerDiagrams::locate(const Eigen::VectorXd& h, const Points& q
 Eigen::VectorXd PowerDiagrams::smoothed_max(const Eigen::VectorXd& h, const Points& queries, double eps) const {
   check_queries(h, queries, static_cast<int>(sites_.rows()));
   if (!(eps > 0)) invalid("the smoothing width must be positive");
+  const int n = static_cast<int>(sites_.rows());
   RT rt;
   triangulate(sites_, offsets(h), order_, false, rt);
   Eigen::VectorXd out(queries.rows());
   if (rt.number_of_vertices() == 0) return out.setConstant(-std::numeric_limits<double>::infinity());
-  // Queries are independent: each thread takes a contiguous run of them (consecutive queries
-  // are usually near each other, so each walk starts near its answer) with its own marks.
+  // The walks and the sums read the triangulation's neighbour lists (CSR) and the sites as
+  // plain arrays: through CGAL's circulators and handles the finest level of the 100K disk
+  // map's coarse start took 0.62-0.66 s (bench/RESULTS.md, session 48).
+  std::vector<std::pair<int, int>> adjacent;
+  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
+    adjacent.emplace_back(e->first->vertex(RT::cw(e->second))->info(), e->first->vertex(RT::ccw(e->second))->info());
+  std::vector<int> start, nbr;
+  neighbour_lists(n, adjacent, start, nbr);
+  std::vector<double> y(2 * static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i) y[2 * i] = sites_(i, 0), y[2 * i + 1] = sites_(i, 1);
+  const int some_vertex = rt.finite_vertices_begin()->info();
+  // Queries in Hilbert order, each thread a contiguous run of them: each walk starts at the
+  // last answer, a step or two away.
+  const std::vector<int> order = hilbert_order(queries);
 #pragma omp parallel
   {
-    std::vector<int> stamp(sites_.rows(), -1);
-    std::vector<RT::Vertex_handle> queue;
-    RT::Vertex_handle v = rt.finite_vertices_begin();
+    std::vector<int> stamp(n, -1);
+    std::vector<int> queue;
+    int v = some_vertex;
 #pragma omp for schedule(static)
-    for (Eigen::Index q = 0; q < queries.rows(); ++q) {
-      const Vec2 x = queries.row(q);
-      v = walk_to_nearest(rt, v, K::Point_2(x.x(), x.y()));
-      auto value = [&](RT::Vertex_handle w) { return x.dot(Vec2(sites_.row(w->info()))) + h[w->info()]; };
-      const double top = value(v);
+    for (size_t k = 0; k < order.size(); ++k) {
+      const int q = order[k];
+      const double qx = queries(q, 0), qy = queries(q, 1);
+      auto value = [&](int w) { return qx * y[2 * w] + qy * y[2 * w + 1] + h[w]; };
+      // The largest value, <x, y_w> + h_w (the least power distance), by steepest ascent: in
+      // a regular triangulation a vertex no neighbour beats is the power diagram's cell of x.
+      double top = value(v);
+      for (int from = -1; from != v;) {
+        from = v;
+        for (int j = start[from]; j < start[from + 1]; ++j) {
+          const double t = value(nbr[j]);
+          if (t > top) {
+            top = t;
+            v = nbr[j];
+          }
+        }
+      }
+      // The terms within e^-40 of the largest, found by a search from it over the lists.
       double sum = 0;
       queue.assign(1, v);
-      stamp[v->info()] = static_cast<int>(q);
+      stamp[v] = q;
       while (!queue.empty()) {
-        const RT::Vertex_handle w = queue.back();
+        const int w = queue.back();
         queue.pop_back();
         const double t = (value(w) - top) / eps;
         if (!(t > -40)) continue;  // (the maximum itself always counts: t = 0)
         sum += std::exp(t);
-        RT::Vertex_circulator c = rt.incident_vertices(w), first = c;
-        if (c == nullptr) continue;
-        do {
-          if (!rt.is_infinite(c) && stamp[c->info()] != q) {
-            stamp[c->info()] = static_cast<int>(q);
-            queue.push_back(c);
+        for (int j = start[w]; j < start[w + 1]; ++j)
+          if (stamp[nbr[j]] != q) {
+            stamp[nbr[j]] = q;
+            queue.push_back(nbr[j]);
           }
-        } while (++c != first);
       }
       out[q] = top + eps * std::log(sum);
     }

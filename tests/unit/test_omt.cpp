@@ -231,6 +231,17 @@ TEST(PowerCells, TheLocalSmoothedMaximumEqualsTheSumOverEverySite) {
     }
   }
   EXPECT_ERROR(diagrams.smoothed_max(h, q, 0), ErrorCode::kInvalidArgument, "smoothing width");
+  // Heights spread by 0.1 hide sites: they are not in the triangulation, so the search never
+  // reaches them, but nor is one of them ever the maximum. At a width of 1e-6 the sum is its
+  // largest term, so the walk must still end at the true maximum from wherever it starts.
+  Eigen::VectorXd spread(y.rows());
+  std::uniform_real_distribution<double> W(0.0, 0.1);
+  for (int i = 0; i < y.rows(); ++i) spread[i] = W(rng) - 0.5 * y.row(i).squaredNorm();
+  const Eigen::VectorXd mass = diagrams(spread).mass;
+  EXPECT_GT((mass.array() == 0).count(), 20) << "the heights should leave many sites without a cell";
+  const Eigen::VectorXd top = diagrams.smoothed_max(spread, q, 1e-6);
+  for (int k = 0; k < q.rows(); ++k)
+    ASSERT_NEAR(top[k], (y * q.row(k).transpose() + spread).maxCoeff(), 1e-12) << "query " << k;
 }
 
 TEST(PowerCells, RefusesCoincidentSites) {
