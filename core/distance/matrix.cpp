@@ -13,6 +13,7 @@
 #include <sstream>
 
 #include "common/error.hpp"
+#include "common/format.hpp"
 #include "common/check.hpp"
 #include "common/parallel.hpp"
 #include "common/version.hpp"
@@ -209,10 +210,7 @@ std::vector<std::string> csv_split(const std::string& line) {
 }
 
 std::string g17(double x) {
-  if (std::isnan(x)) return "nan";
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.17g", x);
-  return buf;
+  return std::isnan(x) ? "nan" : double_text(x);
 }
 
 std::string extension(const std::string& path) {

@@ -13,6 +13,7 @@
 #include <unordered_map>
 
 #include "common/error.hpp"
+#include "common/format.hpp"
 #include "conformal/conformal_map.hpp"
 #include "jobs/jobs.hpp"
 #include "register/correspondence.hpp"
@@ -299,17 +300,22 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
 }
 
 std::string correspondence_csv(const RegisterOutcome& r) {
-  std::ostringstream o;
-  o << "source_vertex,target_face,target_v0,target_v1,target_v2,b0,b1,b2,x,y,z\n";
-  char buf[512];
+  std::string o = "source_vertex,target_face,target_v0,target_v1,target_v2,b0,b1,b2,x,y,z\n";
+  o.reserve(o.size() + r.rows.size() * 160);
   for (const auto& row : r.rows) {
-    std::snprintf(buf, sizeof buf, "%d,%lld,%d,%d,%d,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g\n", row.source_vertex,
-                  static_cast<long long>(row.target_face), row.target_vertices[0], row.target_vertices[1],
-                  row.target_vertices[2], row.bary[0], row.bary[1], row.bary[2], row.position[0], row.position[1],
-                  row.position[2]);
-    o << buf;
+    append_int(o, row.source_vertex);
+    for (long long k : {static_cast<long long>(row.target_face), static_cast<long long>(row.target_vertices[0]),
+                        static_cast<long long>(row.target_vertices[1]), static_cast<long long>(row.target_vertices[2])}) {
+      o += ',';
+      append_int(o, k);
+    }
+    for (double x : {row.bary[0], row.bary[1], row.bary[2], row.position[0], row.position[1], row.position[2]}) {
+      o += ',';
+      append_double(o, x);
+    }
+    o += '\n';
   }
-  return o.str();
+  return o;
 }
 
 }  // namespace brenier::jobs

@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "common/error.hpp"
+#include "common/format.hpp"
 
 namespace brenier::mesh {
 namespace {
@@ -859,13 +860,9 @@ std::string write_freesurfer(const TriMesh& m) {
 }
 
 // ---------------------------------------------------------------------------------------
-// Writers. Ascii numbers use 17 significant digits (exact double round trip).
+// Writers. Ascii numbers are the shortest that read back exactly (common/format.hpp).
 // ---------------------------------------------------------------------------------------
-void put_double(std::string& out, double x) {
-  char buf[40];
-  int n = std::snprintf(buf, sizeof buf, "%.17g", x);
-  out.append(buf, static_cast<size_t>(n));
-}
+void put_double(std::string& out, double x) { append_double(out, x); }
 
 std::string write_obj(const TriMesh& m, const UV* uv) {
   std::string out;
@@ -892,12 +889,11 @@ std::string write_obj(const TriMesh& m, const UV* uv) {
   for (int f = 0; f < m.F.rows(); ++f) {
     out += 'f';
     for (int k = 0; k < 3; ++k) {
-      std::string idx = std::to_string(m.F(f, k) + 1);
       out += ' ';
-      out += idx;
+      append_int(out, m.F(f, k) + 1);
       if (uv) {
         out += '/';
-        out += idx;
+        append_int(out, m.F(f, k) + 1);
       }
     }
     out += '\n';
@@ -915,9 +911,14 @@ std::string write_off(const TriMesh& m) {
     put_double(out, m.V(i, 2));
     out += '\n';
   }
-  for (int f = 0; f < m.F.rows(); ++f)
-    out += "3 " + std::to_string(m.F(f, 0)) + " " + std::to_string(m.F(f, 1)) + " " +
-           std::to_string(m.F(f, 2)) + "\n";
+  for (int f = 0; f < m.F.rows(); ++f) {
+    out += '3';
+    for (int k = 0; k < 3; ++k) {
+      out += ' ';
+      append_int(out, m.F(f, k));
+    }
+    out += '\n';
+  }
   return out;
 }
 

@@ -10,6 +10,7 @@
 #include <mutex>
 
 #include "common/error.hpp"
+#include "common/format.hpp"
 
 namespace brenier::render {
 namespace {
@@ -51,11 +52,7 @@ std::string script_json(const nlohmann::json& j) {
   return s;
 }
 
-std::string exact(double v) {
-  char buf[40];
-  std::snprintf(buf, sizeof buf, "%.17g", v);
-  return buf;
-}
+std::string exact(double v) { return double_text(v); }
 
 // One row per leaf of the JSON: data-key the dotted path, data-value the exact value (JSON
 // text), the cell the value as a reader wants it (6 significant digits).

@@ -15,6 +15,7 @@
 #include "commands.hpp"
 #include "render/report.hpp"
 #include "common/error.hpp"
+#include "common/format.hpp"
 #include "common/parallel.hpp"
 #include "distance/analysis.hpp"
 #include "distance/matrix.hpp"
@@ -240,9 +241,8 @@ int run_mds(const std::string& input, const std::string& output, int dims, bool 
   for (size_t i = 0; i < names.size(); ++i) {
     csv += names[i];
     for (int c = 0; c < dims; ++c) {
-      char buf[32];
-      std::snprintf(buf, sizeof buf, ",%.17g", e.coordinates(static_cast<Eigen::Index>(i), c));
-      csv += buf;
+      csv += ',';
+      append_double(csv, e.coordinates(static_cast<Eigen::Index>(i), c));
     }
     csv += "\n";
   }
