@@ -118,6 +118,16 @@ std::vector<int> hilbert_order(const Points& points) {
   return order;
 }
 
+// The neighbour lists (CSR, as neighbour_lists makes them) of a planar regular triangulation
+// of n sites, from one pass over its finite edges; hidden sites have none.
+void triangulation_neighbours(const RT& rt, int n, std::vector<int>& start, std::vector<int>& nbr) {
+  std::vector<std::pair<int, int>> adjacent;
+  adjacent.reserve(3 * static_cast<size_t>(n));
+  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
+    adjacent.emplace_back(e->first->vertex(RT::cw(e->second))->info(), e->first->vertex(RT::ccw(e->second))->info());
+  neighbour_lists(n, adjacent, start, nbr);
+}
+
 }  // namespace
 
 PowerDiagrams::PowerDiagrams(Domain domain, Points sites, bool check_distinct)
@@ -331,15 +341,11 @@ std::optional<PowerCells> PowerDiagrams::build(const Eigen::VectorXd& psi, const
   if (!t) return std::nullopt;
   const RT& rt = t->rt;
   if (domain.density && start_triangle_.size() != static_cast<size_t>(n)) start_triangle_.assign(n, -1);
-  // Neighbour lists (CSR) from one pass over the triangulation's edges.
+  // Neighbour lists (CSR) from one pass over the triangulation's edges; which sites have a vertex.
   std::vector<char> present(n, 0);
   for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v) present[v->info()] = 1;
-  std::vector<std::pair<int, int>> adjacent;
-  adjacent.reserve(3 * static_cast<size_t>(n));
-  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
-    adjacent.emplace_back(e->first->vertex(RT::cw(e->second))->info(), e->first->vertex(RT::ccw(e->second))->info());
   std::vector<int> start, nbr;
-  neighbour_lists(n, adjacent, start, nbr);
+  triangulation_neighbours(rt, n, start, nbr);
   PowerCells out;
   out.mass = Eigen::VectorXd::Zero(n);
   out.centroid = sites;
@@ -446,13 +452,13 @@ Eigen::VectorXd PowerDiagrams::smoothed_max(const Eigen::VectorXd& h, const Poin
   // The walks and the sums read the triangulation's neighbour lists (CSR) and the sites as
   // plain arrays: through CGAL's circulators and handles the finest level of the 100K disk
   // map's coarse start took 0.62-0.66 s (bench/RESULTS.md, session 48).
-  std::vector<std::pair<int, int>> adjacent;
-  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
-    adjacent.emplace_back(e->first->vertex(RT::cw(e->second))->info(), e->first->vertex(RT::ccw(e->second))->info());
   std::vector<int> start, nbr;
-  neighbour_lists(n, adjacent, start, nbr);
-  std::vector<double> y(2 * static_cast<size_t>(n));
-  for (int i = 0; i < n; ++i) y[2 * i] = sites_(i, 0), y[2 * i + 1] = sites_(i, 1);
+  triangulation_neighbours(rt, n, start, nbr);
+  std::vector<double> y(2 * static_cast<size_t>(n));  // the sites, x and y side by side
+  for (int i = 0; i < n; ++i) {
+    y[2 * i] = sites_(i, 0);
+    y[2 * i + 1] = sites_(i, 1);
+  }
   const int some_vertex = rt.finite_vertices_begin()->info();
   // Queries in Hilbert order, each thread a contiguous run of them: each walk starts at the
   // last answer, a step or two away.
