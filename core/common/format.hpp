@@ -1,7 +1,7 @@
 // Decimal text of doubles for the files we write (meshes, CSV, reports): the shortest digits
 // that read back as the same double (std::to_chars), so every value round-trips exactly, as
-// with "%.17g", in fewer bytes and about a fifth of the time (0.09 against 0.42 us a value;
-// bench/RESULTS.md, session 48). Not for cache keys: their text must not change.
+// with "%.17g", in fewer bytes and about a fifth of the time (bench/bench_format: 54 against
+// 245 ns a value; bench/RESULTS.md, session 48). Not for cache keys: their text must not change.
 #pragma once
 
 #include <charconv>

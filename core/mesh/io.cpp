@@ -862,7 +862,6 @@ std::string write_freesurfer(const TriMesh& m) {
 // ---------------------------------------------------------------------------------------
 // Writers. Ascii numbers are the shortest that read back exactly (common/format.hpp).
 // ---------------------------------------------------------------------------------------
-void put_double(std::string& out, double x) { append_double(out, x); }
 
 std::string write_obj(const TriMesh& m, const UV* uv) {
   std::string out;
@@ -870,19 +869,19 @@ std::string write_obj(const TriMesh& m, const UV* uv) {
   out += "# written by brenier\n";
   for (int i = 0; i < m.V.rows(); ++i) {
     out += "v ";
-    put_double(out, m.V(i, 0));
+    append_double(out, m.V(i, 0));
     out += ' ';
-    put_double(out, m.V(i, 1));
+    append_double(out, m.V(i, 1));
     out += ' ';
-    put_double(out, m.V(i, 2));
+    append_double(out, m.V(i, 2));
     out += '\n';
   }
   if (uv) {
     for (int i = 0; i < uv->rows(); ++i) {
       out += "vt ";
-      put_double(out, (*uv)(i, 0));
+      append_double(out, (*uv)(i, 0));
       out += ' ';
-      put_double(out, (*uv)(i, 1));
+      append_double(out, (*uv)(i, 1));
       out += '\n';
     }
   }
@@ -904,11 +903,11 @@ std::string write_obj(const TriMesh& m, const UV* uv) {
 std::string write_off(const TriMesh& m) {
   std::string out = "OFF\n" + std::to_string(m.V.rows()) + " " + std::to_string(m.F.rows()) + " 0\n";
   for (int i = 0; i < m.V.rows(); ++i) {
-    put_double(out, m.V(i, 0));
+    append_double(out, m.V(i, 0));
     out += ' ';
-    put_double(out, m.V(i, 1));
+    append_double(out, m.V(i, 1));
     out += ' ';
-    put_double(out, m.V(i, 2));
+    append_double(out, m.V(i, 2));
     out += '\n';
   }
   for (int f = 0; f < m.F.rows(); ++f) {

@@ -52,8 +52,6 @@ std::string script_json(const nlohmann::json& j) {
   return s;
 }
 
-std::string exact(double v) { return double_text(v); }
-
 // One row per leaf of the JSON: data-key the dotted path, data-value the exact value (JSON
 // text), the cell the value as a reader wants it (6 significant digits).
 void rows(const nlohmann::json& j, const std::string& key, std::string& out) {
@@ -75,7 +73,7 @@ void rows(const nlohmann::json& j, const std::string& key, std::string& out) {
   } else {
     shown = j.dump();
   }
-  const std::string value = j.is_number_float() ? exact(j.get<double>()) : j.dump();
+  const std::string value = j.is_number_float() ? double_text(j.get<double>()) : j.dump();
   out += "<tr data-key=\"" + escape(key) + "\" data-value=\"" + escape(value) + "\"><th>" + escape(key) + "</th><td>" +
          escape(shown) + "</td></tr>\n";
 }
@@ -216,7 +214,7 @@ std::string matrix_report_html(const MatrixFigure& m, const nlohmann::json& repo
     for (int j : order) {
       char buf[40];
       std::snprintf(buf, sizeof buf, "%.6g", m.d(i, j));
-      table += "<td data-value=\"" + exact(m.d(i, j)) + "\">" + buf + "</td>";
+      table += "<td data-value=\"" + double_text(m.d(i, j)) + "\">" + buf + "</td>";
     }
     table += "</tr>\n";
   }
