@@ -5,9 +5,11 @@
 #include <cstdio>
 #include <exception>
 #include <functional>
+#include <future>
 #include <limits>
 #include <optional>
 #include <string>
+#include <system_error>
 #include <utility>
 
 #include "common/error.hpp"
@@ -70,10 +72,37 @@ bool refines(const AreaPreservingOptions& opt, const AreaPreservingMap& map) {
   return opt.refine.enabled && opt.t == 0 && map.folded_faces == 0;
 }
 
+// The refinement's plan (area_refinement.hpp), made by `make` on a second thread while this
+// one computes the conformal map and the transport: its analysis depends on the mesh alone,
+// and those stages are serial for the most part (the 100K-vertex disk map ran 12.5 s of CPU
+// in 12.6 s). None when the map is not to be refined, or when no thread can be started (the
+// refinement then makes its own).
+// 1 for the vertices on m's boundary, else 0.
+std::vector<char> boundary_flags(const mesh::TriMesh& m) {
+  std::vector<char> flags(m.num_vertices(), 0);
+  for (const auto& loop : mesh::boundary_loops(m))
+    for (int v : loop) flags[v] = 1;
+  return flags;
+}
+
+using PlanAhead = std::future<std::shared_ptr<RefinementPlan>>;
+template <class Make>
+PlanAhead plan_ahead(const AreaPreservingOptions& opt, Make make) {
+  if (!opt.refine.enabled || opt.t != 0) return {};
+  try {
+    return std::async(std::launch::async, std::move(make));
+  } catch (const std::system_error&) {
+    return {};
+  }
+}
+
+std::shared_ptr<RefinementPlan> take(PlanAhead& plan) { return plan.valid() ? plan.get() : nullptr; }
+
 // The sphere map returned, with the face-by-face refinement when it is a bijection.
-AreaPreservingMap refined_on_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt, AreaPreservingMap map) {
+AreaPreservingMap refined_on_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt, PlanAhead& plan,
+                                    AreaPreservingMap map) {
   if (refines(opt, map) && quality::covers_once(map.degree))
-    map.refinement = refine_sphere_areas(m, face_targets(m, opt), map.positions, opt.refine);
+    map.refinement = refine_sphere_areas(m, face_targets(m, opt), map.positions, opt.refine, take(plan));
   return map;
 }
 
@@ -117,6 +146,9 @@ OmtResult transport_to_mesh_sites(const mesh::TriMesh& m, const Domain& domain, 
 AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
   const int nv = m.num_vertices();
   const Eigen::VectorXd nu = weighted_masses(m, opt);
+  // (The plan's thread finds the boundary itself: an error there waits for the conformal
+  // map's checks of the mesh, which name the problem first.)
+  PlanAhead plan = plan_ahead(opt, [&m, &opt] { return plan_disk_refinement(m, boundary_flags(m), opt.refine); });
   // (1) conformal map phi: S -> D (Alg. 1).
   AreaPreservingMap out = starting_from(conformal::map_to_disk(m, opt.conformal));
   // (2) sites p_i = phi(v_i), masses nu_i scaled to the disk's area pi inside solve_omt;
@@ -147,17 +179,17 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   // The boundary goes to the boundary: a boundary vertex's cell meets the circle, and the
   // vertex is put where the radius through its centroid meets it (this also makes the
   // fixed outline of the repair below convex, as Floater's theorem asks).
-  std::vector<char> fixed(nv, 0);
-  for (const auto& loop : mesh::boundary_loops(m))
-    for (int v : loop) {
-      fixed[v] = 1;
+  const std::vector<char> fixed = boundary_flags(m);
+  for (int v = 0; v < nv; ++v)
+    if (fixed[v]) {
       const double r = out.positions.row(v).norm();
       if (r > 0) out.positions.row(v) /= r;
       // x / |x| can come out an ulp outside the circle; the map lies in the closed disk.
       while (out.positions.row(v).norm() > 1) out.positions.row(v) *= 1 - std::numeric_limits<double>::epsilon();
     }
   out.relaxed_vertices = conformal::repair_planar_folds(m, out.positions, fixed, out.folded_faces);
-  if (refines(opt, out)) out.refinement = refine_disk_areas(m, face_targets(m, opt), out.positions, fixed, opt.refine);
+  if (refines(opt, out))
+    out.refinement = refine_disk_areas(m, face_targets(m, opt), out.positions, fixed, opt.refine, take(plan));
   return out;
 }
 
@@ -310,6 +342,7 @@ std::optional<Eigen::Vector3d> chosen_pole(const mesh::TriMesh& m, const mesh::V
 AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
   const int nv = m.num_vertices();
   const Eigen::VectorXd nu = weighted_masses(m, opt);
+  PlanAhead plan = plan_ahead(opt, [&m] { return plan_sphere_refinement(m); });
   AreaPreservingMap out = starting_from(conformal::map_to_sphere(m, opt.conformal));
   const mesh::Vertices& X = out.conformal.positions;
   // The start. Long protrusions (legs, tails, fingers) shrink exponentially under the
@@ -321,8 +354,7 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   // than kDefer, each stage deferring the vertices closer than that to a neighbour. The
   // result is still exactly area-preserving cell by cell, but it is the polar factor of
   // the spread start, not of the conformal map (out.spreading_stages > 0 says so).
-  constexpr double kCrowded = 1e-8;  // armadillo's 3e-8 transports from the conformal start
-  constexpr double kDefer = 1e-6, kDeferMore = 1e-5;
+  constexpr double kCrowded = 1e-8, kDefer = 1e-6, kDeferMore = 1e-5;  // armadillo's 3e-8: not crowded
   constexpr int kMaxStages = 10;
   const std::optional<Eigen::Vector3d> chosen = chosen_pole(m, X, opt);  // none: the default pole
   const Eigen::Vector3d* toward = chosen ? &*chosen : nullptr;
@@ -410,22 +442,22 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
   };
   // 1. The conformal map itself, unless it is crowded (or its transport fails: armadillo on
   //    some processors, where the Voronoi start cannot take a step).
-  if (shortest_edges(m, X).minCoeff() >= kCrowded && attempt([&] { transport_from(X); })) return refined_on_sphere(m, opt, std::move(out));
+  if (shortest_edges(m, X).minCoeff() >= kCrowded && attempt([&] { transport_from(X); })) return refined_on_sphere(m, opt, plan, std::move(out));
   // 2. The spread start with Tutte steps only between stages (cheap; camel and cow come out
   //    bijective this way). A stage runs even where nothing is crowded: one loose transport
   //    and its centroids order a start whose own centroid map folds (cactus: 6 folds from
   //    the conformal map, none from one stage).
-  if (attempt([&] { spread_start(false, kDefer); })) return refined_on_sphere(m, opt, std::move(out));
+  if (attempt([&] { spread_start(false, kDefer); })) return refined_on_sphere(m, opt, plan, std::move(out));
   // 3. Also the barrier repairs between stages, on the sphere and then in charts (bull and
   //    armadillo need the first: the next stage's kept centroids are then in order, where
   //    the second try leaves their regions wrapped; dino the second: 2 folds left without).
-  if (attempt([&] { spread_start(true, kDefer); })) return refined_on_sphere(m, opt, std::move(out));
+  if (attempt([&] { spread_start(true, kDefer); })) return refined_on_sphere(m, opt, plan, std::move(out));
   // 4. Deferring more (vertices within 1e-5 of a neighbour), with the repairs: only where the
   //    round-off of the tries above left a fold torn across the sphere. Man with CHOLMOD's
   //    simplicial factor kept one after try 3 and none after this one (1e-7 kept it).
-  if (attempt([&] { spread_start(true, kDeferMore); })) return refined_on_sphere(m, opt, std::move(out));
+  if (attempt([&] { spread_start(true, kDeferMore); })) return refined_on_sphere(m, opt, plan, std::move(out));
   if (!best) std::rethrow_exception(failure);
-  return refined_on_sphere(m, opt, std::move(*best));
+  return refined_on_sphere(m, opt, plan, std::move(*best));
 }
 
 }  // namespace brenier::omt

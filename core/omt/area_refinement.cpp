@@ -1,9 +1,11 @@
 #include "omt/area_refinement.hpp"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <optional>
 #include <type_traits>
 
@@ -15,6 +17,107 @@
 #include "omt/newton_step.hpp"
 
 namespace brenier::omt {
+
+namespace detail {
+
+// A vertex's unknowns: none (held), two (its coordinates in the geometry's frame), or one,
+// the step along the unit circle of a disk's boundary vertex (x -> (x + tau t) / |x + tau t|,
+// t = (-y, x) the circle's tangent there).
+struct Dof {
+  int offset = -1;  // first unknown, -1: held
+  int count = 0;    // 0, 1 (on the circle) or 2
+};
+
+// visit(e, row, col) for the lower-triangle entries of face (a, b, c)'s Hessian between
+// unknowns, e the column-major index into its reduced 6x6 Hessian (unknown k of corner p at
+// 2p + k).
+template <class Visit>
+void each_entry(const std::array<int, 3>& v, const std::vector<Dof>& dof, const Visit& visit) {
+  for (int p = 0; p < 3; ++p)
+    for (int q = 0; q < 3; ++q) {
+      const Dof &dp = dof[v[p]], &dq = dof[v[q]];
+      for (int a = 0; a < dp.count; ++a)
+        for (int b = 0; b < dq.count; ++b)
+          if (dp.offset + a >= dq.offset + b) visit((2 * p + a) + 6 * (2 * q + b), dp.offset + a, dq.offset + b);
+    }
+}
+
+}  // namespace detail
+
+// See area_refinement.hpp. The Hessian's entries go straight into H's values through slots.
+struct RefinementPlan {
+  mesh::Faces faces;                  // the mesh's faces it was made for
+  std::vector<char> free;             // per vertex, its number of unknowns
+  std::vector<detail::Dof> dof;       // per vertex, its unknowns
+  int n = 0;                          // unknowns in all
+  Eigen::SparseMatrix<double> H;      // the Hessian's pattern (lower triangle)
+  std::vector<int> slots;             // per face, 36 entries: the value index of each Hessian entry (-1: none)
+  detail::NewtonFactor llt;           // analysed for H's pattern (n > 0)
+};
+
+namespace {
+
+// The plan for unknowns free[v] per vertex (0, 1 or 2: Dof::count).
+std::shared_ptr<RefinementPlan> plan_refinement(const mesh::Faces& F, const std::vector<char>& free) {
+  auto plan = std::make_shared<RefinementPlan>();
+  RefinementPlan& p = *plan;
+  p.faces = F;
+  p.free = free;
+  p.dof.resize(free.size());
+  for (size_t r = 0; r < free.size(); ++r)
+    if (free[r] > 0) p.dof[r] = {p.n, free[r]}, p.n += free[r];
+  auto corners = [&F](Eigen::Index f) { return std::array<int, 3>{F(f, 0), F(f, 1), F(f, 2)}; };
+  std::vector<Eigen::Triplet<double>> entries;
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    detail::each_entry(corners(f), p.dof, [&](int, int r, int c) { entries.emplace_back(r, c, 1.0); });
+  p.H.resize(p.n, p.n);
+  p.H.setFromTriplets(entries.begin(), entries.end());
+  p.H.makeCompressed();
+  p.slots.assign(static_cast<size_t>(F.rows()) * 36, -1);
+  for (Eigen::Index f = 0; f < F.rows(); ++f)
+    detail::each_entry(corners(f), p.dof, [&](int local, int r, int c) {
+      const int* rows = p.H.innerIndexPtr();
+      const int* begin = rows + p.H.outerIndexPtr()[c];
+      const int* end = rows + p.H.outerIndexPtr()[c + 1];
+      p.slots[f * 36 + local] = static_cast<int>(std::lower_bound(begin, end, r) - rows);
+    });
+  single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
+  // Supernodal at every size: the 2x2 blocks of each vertex fill more than the transport's
+  // Hessian does. (Supernodal lost below 100K unknowns only while CHOLMOD's per-supernode
+  // OpenMP teams woke threads, before with_library_loops_serial: mannequin-devil's
+  // refinement, 26K unknowns, 5.2-5.4 s simplicial against 3.6-3.7 s supernodal now;
+  // lion-head 1.01 against 0.74 s; bench/RESULTS.md, session 46.)
+  p.llt.setMode(Eigen::CholmodSupernodalLLt);
+  p.llt.cholmod().print = 0;
+  // The pattern is analysed once per refinement and factored at every step, so a nested
+  // dissection ordering pays: CHOLMOD's NESDIS left 13.7M entries in the 100K-vertex disk
+  // map's factor against AMD's 17.1M, and cut mannequin-devil's refinement (53 steps) from
+  // 4.1-4.5 s to 3.4-3.6 s (bench/RESULTS.md, session 26).
+  p.llt.cholmod().nmethods = 1;
+  p.llt.cholmod().method[0].ordering = CHOLMOD_NESDIS;
+  if (p.n > 0) p.llt.analyzePattern(p.H);
+  return plan;
+}
+
+// The disk's unknowns per vertex: 2 inside, 1 on the boundary (along the circle) or 0 (held).
+std::vector<char> disk_unknowns(const std::vector<char>& fixed, const AreaRefineOptions& opt) {
+  std::vector<char> free(fixed.size());
+  for (size_t v = 0; v < fixed.size(); ++v) free[v] = !fixed[v] ? 2 : opt.slide_boundary ? 1 : 0;
+  return free;
+}
+
+}  // namespace
+
+std::shared_ptr<RefinementPlan> plan_disk_refinement(const mesh::TriMesh& m, const std::vector<char>& fixed,
+                                                     const AreaRefineOptions& opt) {
+  BRENIER_CHECK(static_cast<int>(fixed.size()) == m.num_vertices(),
+                fixed.size() << " fixed flags for " << m.num_vertices() << " vertices");
+  return plan_refinement(m.F, disk_unknowns(fixed, opt));
+}
+
+std::shared_ptr<RefinementPlan> plan_sphere_refinement(const mesh::TriMesh& m) {
+  return plan_refinement(m.F, std::vector<char>(m.num_vertices(), 2));
+}
 
 Eigen::VectorXd abs_log_area_ratios(const mesh::Faces& F, const mesh::Vertices& X, const Eigen::VectorXd& target) {
   const Eigen::VectorXd a = mesh::face_areas(F, X);
@@ -274,14 +377,6 @@ struct SphereGeometry {
   bool valid(const mesh::Vertices& Y) const { return quality::covers_once(quality::sphere_degree(*F, Y)); }
 };
 
-// A vertex's unknowns: none (held), two (its coordinates in the geometry's frame), or one,
-// the step along the unit circle of a disk's boundary vertex (x -> (x + tau t) / |x + tau t|,
-// t = (-y, x) the circle's tangent there).
-struct Dof {
-  int offset = -1;  // first unknown, -1: held
-  int count = 0;    // 0, 1 (on the circle) or 2
-};
-
 // Damped projected Newton on the energy of area_refinement.hpp over the unknowns of Dof: each
 // face's clamped Hessian, in its corners' unknowns, into the global one, whose pattern is
 // fixed (the entries go straight into its values), factored by CHOLMOD; the step is cut to
@@ -291,38 +386,9 @@ struct Dof {
 template <class Geometry>
 class FaceNewton {
  public:
-  FaceNewton(const std::vector<detail::BarrierFace>& faces, const std::vector<Dof>& dof, int n, Geometry& geometry)
-      : faces_(faces), dof_(dof), n_(n), geometry_(geometry), local_(faces.size()), corner_g_(faces.size() * 3),
-        tangent_(dof.size(), Eigen::Vector2d::Zero()) {
-    std::vector<Eigen::Triplet<double>> entries;
-    for (const detail::BarrierFace& f : faces_)
-      each_entry(f, [&](int, int r, int c) { entries.emplace_back(r, c, 1.0); });
-    H_.resize(n_, n_);
-    H_.setFromTriplets(entries.begin(), entries.end());
-    H_.makeCompressed();
-    slots_.assign(faces_.size() * 36, -1);
-    for (size_t k = 0; k < faces_.size(); ++k)
-      each_entry(faces_[k], [&](int local, int r, int c) {
-        const int* rows = H_.innerIndexPtr();
-        const int* begin = rows + H_.outerIndexPtr()[c];
-        const int* end = rows + H_.outerIndexPtr()[c + 1];
-        slots_[k * 36 + local] = static_cast<int>(std::lower_bound(begin, end, r) - rows);
-      });
-    single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
-    // Supernodal at every size: the 2x2 blocks of each vertex fill more than the transport's
-    // Hessian does. (Supernodal lost below 100K unknowns only while CHOLMOD's per-supernode
-    // OpenMP teams woke threads, before with_library_loops_serial: mannequin-devil's
-    // refinement, 26K unknowns, 5.2-5.4 s simplicial against 3.6-3.7 s supernodal now;
-    // lion-head 1.01 against 0.74 s; bench/RESULTS.md, session 46.)
-    llt_.setMode(Eigen::CholmodSupernodalLLt);
-    llt_.cholmod().print = 0;
-    // The pattern is analysed once per refinement and factored at every step, so a nested
-    // dissection ordering pays: CHOLMOD's NESDIS left 13.7M entries in the 100K-vertex disk
-    // map's factor against AMD's 17.1M, and cut mannequin-devil's refinement (53 steps) from
-    // 4.1-4.5 s to 3.4-3.6 s (bench/RESULTS.md, session 26).
-    llt_.cholmod().nmethods = 1;
-    llt_.cholmod().method[0].ordering = CHOLMOD_NESDIS;
-  }
+  FaceNewton(const std::vector<detail::BarrierFace>& faces, RefinementPlan& plan, Geometry& geometry)
+      : faces_(faces), dof_(plan.dof), n_(plan.n), geometry_(geometry), local_(faces.size()), corner_g_(faces.size() * 3),
+        tangent_(plan.dof.size(), Eigen::Vector2d::Zero()), H_(plan.H), slots_(plan.slots), llt_(plan.llt) {}
 
   // The energy at X (infinite when a face degenerates or turns over).
   // The faces' terms are summed in face order, not by an OpenMP reduction: libgomp combines
@@ -362,7 +428,7 @@ class FaceNewton {
       const Local& L = local_[k];
       const detail::BarrierFace& f = faces_[k];
       for (int p = 0; p < 3; ++p) {
-        const Dof& d = dof_[f.v[p]];
+        const detail::Dof& d = dof_[f.v[p]];
         for (int a = 0; a < d.count; ++a) g[d.offset + a] += L.g[2 * p + a];
         if (d.count == 1) circle_g[f.v[p]] += corner_g_[k * 3 + p];
       }
@@ -378,7 +444,6 @@ class FaceNewton {
     // sphere's energy is invariant under rotations).
     const double shift = 1e-9 * H_.diagonal().sum() / n_;
     for (int i = 0; i < n_; ++i) H_.coeffRef(i, i) += shift;
-    if (!analyzed_) llt_.analyzePattern(H_), analyzed_ = true;
     with_library_loops_serial([&] { llt_.factorize(H_); });
     if (llt_.info() != Eigen::Success) return 0;
     const double E0 = before = energy(X, theta);
@@ -408,7 +473,7 @@ class FaceNewton {
   Mat6 reduction(const detail::BarrierFace& f) const {
     Mat6 T = Mat6::Zero();
     for (int p = 0; p < 3; ++p) {
-      const Dof& d = dof_[f.v[p]];
+      const detail::Dof& d = dof_[f.v[p]];
       if (d.count == 2) T.block<2, 2>(2 * p, 2 * p).setIdentity();
       if (d.count == 1) T.block<2, 1>(2 * p, 2 * p) = tangent_[f.v[p]];
     }
@@ -416,23 +481,10 @@ class FaceNewton {
   }
   // The 2-D step of vertex r in its geometry's frame.
   Eigen::Vector2d step_of(int r, const Eigen::VectorXd& d) const {
-    const Dof& v = dof_[r];
+    const detail::Dof& v = dof_[r];
     if (v.count == 2) return d.segment<2>(v.offset);
     if (v.count == 1) return d[v.offset] * tangent_[r];
     return Eigen::Vector2d::Zero();
-  }
-
-  // visit(e, row, col) for the face's lower-triangle entries between unknowns, e the
-  // column-major index into its reduced 6x6 Hessian (unknown a of corner p at 2p + a).
-  template <class Visit>
-  void each_entry(const detail::BarrierFace& f, const Visit& visit) const {
-    for (int p = 0; p < 3; ++p)
-      for (int q = 0; q < 3; ++q) {
-        const Dof &dp = dof_[f.v[p]], &dq = dof_[f.v[q]];
-        for (int a = 0; a < dp.count; ++a)
-          for (int b = 0; b < dq.count; ++b)
-            if (dp.offset + a >= dq.offset + b) visit((2 * p + a) + 6 * (2 * q + b), dp.offset + a, dq.offset + b);
-      }
   }
 
   double max_step(const mesh::Vertices& X, const Eigen::VectorXd& d) const {
@@ -454,17 +506,16 @@ class FaceNewton {
   }
 
   const std::vector<detail::BarrierFace>& faces_;
-  const std::vector<Dof>& dof_;
+  const std::vector<detail::Dof>& dof_;
   int n_;
   Geometry& geometry_;
   std::vector<Local> local_;           // per face, in its corners' unknowns
   mutable std::vector<double> terms_;  // per face: the energy's terms (energy())
   std::vector<Eigen::Vector2d> corner_g_;  // per face corner, the gradient in the geometry's frame
   std::vector<Eigen::Vector2d> tangent_;   // per vertex on the circle, the tangent at the step's start
-  Eigen::SparseMatrix<double> H_;
-  std::vector<int> slots_;  // per face, 36 entries: the value index of each Hessian entry (-1: none)
-  detail::NewtonFactor llt_;
-  bool analyzed_ = false;
+  Eigen::SparseMatrix<double>& H_;        // the plan's pattern, its values set at every step
+  const std::vector<int>& slots_;          // the plan's: per face, where its 36 entries go in H_
+  detail::NewtonFactor& llt_;              // the plan's, analysed for H_'s pattern
 };
 
 // The reference triangle of face f: m's own shape, scaled to area a.
@@ -482,12 +533,12 @@ void check_targets(const mesh::TriMesh& m, const Eigen::VectorXd& target, const 
 
 // The staged minimization of area_refinement.hpp: theta = 0.999, then 0.9999, each stage
 // ended when the Newton decrement falls below 1e-7 of the energy or after 50 steps, the
-// whole when the tolerances hold or the budget is spent. free[v]: vertex v's number of
-// unknowns (Dof::count). Given min_progress, a stage also ends at a step that cuts the mean
+// whole when the tolerances hold or the budget is spent; the unknowns and the analysed
+// pattern are plan's. Given min_progress, a stage also ends at a step that cuts the mean
 // |log area ratio| by less than that fraction (0: at a step that raises it).
 template <class Geometry>
 AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
-                      const std::vector<char>& free, const AreaRefineOptions& opt, Geometry& geometry,
+                      RefinementPlan& plan, const AreaRefineOptions& opt, Geometry& geometry,
                       std::optional<double> min_progress = std::nullopt) {
   const auto t0 = std::chrono::steady_clock::now();
   AreaRefinement out;
@@ -530,11 +581,8 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
     for (int f = 0; f < m.num_faces(); ++f) faces[f] = reference(m, f, t[f] * scale);
   };
   set_references();
-  std::vector<Dof> dof(X.rows());
-  int n = 0;
-  for (Eigen::Index r = 0; r < X.rows(); ++r)
-    if (free[r] > 0) dof[r] = {n, free[r]}, n += free[r];
-  FaceNewton<Geometry> newton(faces, dof, n, geometry);
+  const int n = plan.n;
+  FaceNewton<Geometry> newton(faces, plan, geometry);
   for (double theta : {0.999, 0.9999}) {
     if (out.converged || out.iterations >= opt.max_iterations || n == 0) break;
     ++out.stages;
@@ -569,28 +617,36 @@ bool every_face(const mesh::TriMesh& m, const Test& test) {
   return true;
 }
 
+// The plan the caller made, checked against the mesh and the unknowns it asks for, or a new one.
+std::shared_ptr<RefinementPlan> plan_for(const mesh::TriMesh& m, const std::vector<char>& free,
+                                         std::shared_ptr<RefinementPlan> plan) {
+  if (!plan) return plan_refinement(m.F, free);
+  BRENIER_CHECK(plan->free == free && plan->faces.rows() == m.F.rows() && plan->faces == m.F,
+                "the area refinement's plan was made for another mesh or other held vertices");
+  return plan;
+}
+
 }  // namespace
 
 AreaRefinement refine_disk_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
-                                 const std::vector<char>& fixed, const AreaRefineOptions& opt) {
+                                 const std::vector<char>& fixed, const AreaRefineOptions& opt,
+                                 std::shared_ptr<RefinementPlan> plan) {
   check_targets(m, target, X);
   if (!opt.enabled) return {};
   // A fold: the barrier needs a valid start.
   if (!every_face(m, [&](int f) { return PlaneGeometry::chord_area(X, m.F, f) > 0; })) return {};
-  // Unknowns per vertex: 2 inside, 1 on the boundary (along the circle) or 0 (held).
-  std::vector<char> free(fixed.size());
-  for (size_t v = 0; v < fixed.size(); ++v) free[v] = !fixed[v] ? 2 : opt.slide_boundary ? 1 : 0;
+  plan = plan_for(m, disk_unknowns(fixed, opt), std::move(plan));
   PlaneGeometry plane;
-  return refine(m, target, X, free, opt, plane);
+  return refine(m, target, X, *plan, opt, plane);
 }
 
 AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
-                                   const AreaRefineOptions& opt) {
+                                   const AreaRefineOptions& opt, std::shared_ptr<RefinementPlan> plan) {
   check_targets(m, target, X);
   if (!opt.enabled) return {};
   auto turns_out = [&](int f) { return X.row(m.F(f, 0)).dot(X.row(m.F(f, 1)).cross(X.row(m.F(f, 2)))) > 0; };
   if (!every_face(m, turns_out) || !quality::covers_once(quality::sphere_degree(m.F, X))) return {};
-  const std::vector<char> free(m.num_vertices(), 2);
+  plan = plan_for(m, std::vector<char>(m.num_vertices(), 2), std::move(plan));
   SphereGeometry sphere;
   sphere.F = &m.F;
   // The volume measure first (a barrier against turning, from any start), then, where the
@@ -605,7 +661,7 @@ AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd
   // measure's, and the steps only cost time (over the 88 meshes of the sweep, 67 s of
   // refinement against 84 s, and diplodocus meets the tolerances; bench/RESULTS.md).
   const mesh::Vertices start = X;
-  AreaRefinement out = refine(m, target, X, free, opt, sphere, 0.0);
+  AreaRefinement out = refine(m, target, X, *plan, opt, sphere, 0.0);
   auto add = [&out](const AreaRefinement& r) {
     out.iterations += r.iterations;
     out.stages += r.stages;
@@ -615,7 +671,7 @@ AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd
   for (int from_start = 0; from_start < 2 && !out.converged; ++from_start) {
     if (from_start && out.kept_start) break;  // the first chord run already started there
     mesh::Vertices Y = from_start ? start : X;
-    const AreaRefinement chord = refine(m, target, Y, free, opt, sphere, 0.01);
+    const AreaRefinement chord = refine(m, target, Y, *plan, opt, sphere, 0.01);
     add(chord);
     if (!chord.kept_start && chord.after.mean < out.after.mean) {
       X = std::move(Y);

@@ -26,6 +26,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <memory>
 #include <vector>
 
 #include "mesh/mesh.hpp"
@@ -61,18 +62,36 @@ struct AreaRefinement {
 /// |log((a_f / sum a) / (target_f / sum target))| per face, a the chord triangle areas of X.
 Eigen::VectorXd abs_log_area_ratios(const mesh::Faces& F, const mesh::Vertices& X, const Eigen::VectorXd& target);
 
+/// The refinement's linear algebra, which depends only on the mesh's faces and on which
+/// vertices move: the unknowns, the Hessian's sparsity pattern and CHOLMOD's fill-reducing
+/// analysis of it (nested dissection: 1.0 s of the 100K-vertex disk map's 4.5 s refinement,
+/// bench/RESULTS.md, session 49). Made ahead of the map it refines, it can be computed on a
+/// second core while the conformal map and the transport, serial for the most part, run on
+/// the first (omt::area_preserving_disk and _sphere do so). One plan serves any number of
+/// refinements of the same mesh, one at a time (the sphere's volume and chord stages).
+struct RefinementPlan;
+
+/// The plan for refine_disk_areas(m, ..., fixed, options, plan).
+std::shared_ptr<RefinementPlan> plan_disk_refinement(const mesh::TriMesh& m, const std::vector<char>& fixed,
+                                                     const AreaRefineOptions& options);
+/// The plan for refine_sphere_areas(m, ...).
+std::shared_ptr<RefinementPlan> plan_sphere_refinement(const mesh::TriMesh& m);
+
 /// Refines a planar map X (#V by 3, z = 0, no flipped face) of m toward the face areas
 /// `target` (any scale: only their ratios count, their common scale is refitted to the map
 /// before every step); the rows with fixed[v] != 0 (the disk's boundary, on the unit circle)
 /// slide along the circle, or are held without options.slide_boundary. X keeps no flipped
-/// face, so the boundary keeps its cyclic order.
+/// face, so the boundary keeps its cyclic order. `plan`, from plan_disk_refinement with the
+/// same m, fixed and options (checked), saves its analysis; without one it is made here.
+/// The result's seconds count the refinement, not the plan made ahead.
 AreaRefinement refine_disk_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
-                                 const std::vector<char>& fixed, const AreaRefineOptions& options);
+                                 const std::vector<char>& fixed, const AreaRefineOptions& options,
+                                 std::shared_ptr<RefinementPlan> plan = nullptr);
 
 /// Refines a map X of closed genus-0 m onto the unit sphere (no flipped face, covering the
 /// sphere once) toward the face areas `target`; every vertex moves, on the sphere. X stays a
-/// bijection.
+/// bijection. `plan`: from plan_sphere_refinement(m), or made here.
 AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
-                                   const AreaRefineOptions& options);
+                                   const AreaRefineOptions& options, std::shared_ptr<RefinementPlan> plan = nullptr);
 
 }  // namespace brenier::omt

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <numbers>
 
+#include "common/error.hpp"
 #include "mesh/geometry.hpp"
 #include "mesh/shapes.hpp"
 #include "mesh/topology.hpp"
@@ -289,4 +290,50 @@ TEST(AreaRefinement, PhiTAFoldedStartAndNoRefineAreLeftAlone) {
   X = d.V;
   EXPECT_FALSE(omt::refine_disk_areas(d, mesh::face_areas(d), X, boundary_of(d), off).ran);
   EXPECT_EQ(X, d.V);
+}
+
+TEST(AreaRefinement, APlanMadeAheadGivesTheSameMapAndServesOnlyItsOwnMesh) {
+  // The plan (unknowns, pattern and CHOLMOD's analysis) made ahead, as the maps make it on a
+  // second thread, and reused for a second refinement: the same map to the last bit as a
+  // refinement that makes its own. The pulled disk of AFlatDiskPulledRadially..., boundary sliding.
+  const mesh::TriMesh m = mesh::make_disk(12);
+  mesh::Vertices start = m.V;
+  for (int v = 0; v < m.num_vertices(); ++v) {
+    const double r = start.row(v).head<2>().norm();
+    if (r > 0) start.row(v).head<2>() *= std::pow(r, 0.6);
+  }
+  const std::vector<char> fixed = boundary_of(m);
+  const omt::AreaRefineOptions o;
+  mesh::Vertices own = start;
+  const omt::AreaRefinement r0 = omt::refine_disk_areas(m, mesh::face_areas(m), own, fixed, o);
+  ASSERT_TRUE(r0.ran);
+  ASSERT_GT(r0.iterations, 1);
+  const std::shared_ptr<omt::RefinementPlan> plan = omt::plan_disk_refinement(m, fixed, o);
+  for (int run = 0; run < 2; ++run) {
+    mesh::Vertices X = start;
+    const omt::AreaRefinement r = omt::refine_disk_areas(m, mesh::face_areas(m), X, fixed, o, plan);
+    EXPECT_EQ(X, own) << "run " << run;
+    EXPECT_EQ(r.iterations, r0.iterations);
+  }
+  // Another mesh, or the boundary held where the plan slides it: refused, not misused.
+  const mesh::TriMesh other = mesh::make_disk(10);
+  mesh::Vertices Y = other.V;
+  EXPECT_THROW(omt::refine_disk_areas(other, mesh::face_areas(other), Y, boundary_of(other), o, plan), Error);
+  omt::AreaRefineOptions held = o;
+  held.slide_boundary = false;
+  mesh::Vertices X = start;
+  EXPECT_THROW(omt::refine_disk_areas(m, mesh::face_areas(m), X, fixed, held, plan), Error);
+  // The sphere's: one plan through its volume and chord stages, the same map as without.
+  const mesh::TriMesh s = [] {
+    mesh::TriMesh ico = mesh::make_icosphere(2);
+    for (int v = 0; v < ico.num_vertices(); ++v) ico.V.row(v).normalize();
+    return ico;
+  }();
+  mesh::Vertices A = s.V;
+  for (int v = 0; v < s.num_vertices(); ++v) A.row(v) = (A.row(v) + Eigen::RowVector3d(0, 0, 0.5)).normalized();
+  mesh::Vertices B = A;
+  omt::refine_sphere_areas(s, mesh::face_areas(s), A, o);
+  omt::refine_sphere_areas(s, mesh::face_areas(s), B, o, omt::plan_sphere_refinement(s));
+  EXPECT_EQ(A, B);
+  EXPECT_THROW(omt::refine_sphere_areas(s, mesh::face_areas(s), B, o, plan), Error);
 }
