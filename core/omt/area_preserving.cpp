@@ -7,6 +7,7 @@
 #include <functional>
 #include <future>
 #include <limits>
+#include <malloc.h>
 #include <optional>
 #include <string>
 #include <system_error>
@@ -72,11 +73,6 @@ bool refines(const AreaPreservingOptions& opt, const AreaPreservingMap& map) {
   return opt.refine.enabled && opt.t == 0 && map.folded_faces == 0;
 }
 
-// The refinement's plan (area_refinement.hpp), made by `make` on a second thread while this
-// one computes the conformal map and the transport: its analysis depends on the mesh alone,
-// and those stages are serial for the most part (the 100K-vertex disk map ran 12.5 s of CPU
-// in 12.6 s). None when the map is not to be refined, or when no thread can be started (the
-// refinement then makes its own).
 // 1 for the vertices on m's boundary, else 0.
 std::vector<char> boundary_flags(const mesh::TriMesh& m) {
   std::vector<char> flags(m.num_vertices(), 0);
@@ -85,12 +81,24 @@ std::vector<char> boundary_flags(const mesh::TriMesh& m) {
   return flags;
 }
 
+// The refinement's plan (area_refinement.hpp), made by `make` on a second thread while this
+// one computes the conformal map and the transport: its analysis depends on the mesh alone,
+// and those stages are serial for the most part (the 100K-vertex disk map ran 12.5 s of CPU
+// in 12.6 s). None when the map is not to be refined, or when no thread can be started (the
+// refinement then makes its own). The thread's own malloc arena would keep the analysis's
+// freed scratch between the plan's live blocks, out of the main thread's reach: malloc_trim
+// hands it back (the 100K disk map's peak: 397-433 MB before, 472-500 MB with the thread,
+// 420-422 MB with the trim; bench/RESULTS.md, session 49).
 using PlanAhead = std::future<std::shared_ptr<RefinementPlan>>;
 template <class Make>
 PlanAhead plan_ahead(const AreaPreservingOptions& opt, Make make) {
   if (!opt.refine.enabled || opt.t != 0) return {};
   try {
-    return std::async(std::launch::async, std::move(make));
+    return std::async(std::launch::async, [make = std::move(make)] {
+      std::shared_ptr<RefinementPlan> plan = make();
+      malloc_trim(0);
+      return plan;
+    });
   } catch (const std::system_error&) {
     return {};
   }
