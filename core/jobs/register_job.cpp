@@ -16,6 +16,7 @@
 #include "common/format.hpp"
 #include "conformal/conformal_map.hpp"
 #include "jobs/jobs.hpp"
+#include "mesh/topology.hpp"
 #include "register/correspondence.hpp"
 #include "register/domain_match.hpp"
 
@@ -56,18 +57,11 @@ ProgressSink share(const ProgressSink& sink, std::mutex& m, const std::string& s
   };
 }
 
-std::vector<char> boundary_vertices(const mesh::TriMesh& m) {
-  std::vector<char> b(static_cast<size_t>(m.num_vertices()), 0);
-  for (const auto& loop : mesh::boundary_loops(m))
-    for (int v : loop) b[static_cast<size_t>(v)] = 1;
-  return b;
-}
-
 // The landmark pairs in domain coordinates (the first pair is the cut holes with cut_hole).
 std::vector<registration::LandmarkPair> domain_landmarks(const RegisterRequest& r, const MapOutcome& a,
                                                          const MapOutcome& b, int64_t inputs_a, int64_t inputs_b) {
   const std::vector<int> ta = inverse(a.vertex_origin, inputs_a), tb = inverse(b.vertex_origin, inputs_b);
-  const std::vector<char> bb = boundary_vertices(b.surface);
+  const std::vector<char> bb = mesh::boundary_flags(b.surface);
   std::vector<registration::LandmarkPair> out;
   for (size_t k = r.cut_hole ? 1 : 0; k < r.source_landmarks.size(); ++k) {
     const int sa = r.source_landmarks[k], sb = r.target_landmarks[k];

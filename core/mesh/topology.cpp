@@ -111,6 +111,13 @@ Topology compute_topology(const TriMesh& mesh) {
 
 std::vector<std::vector<int>> boundary_loops(const TriMesh& mesh) { return loops_from(sorted_edge_uses(mesh.F)); }
 
+std::vector<char> boundary_flags(const TriMesh& mesh) {
+  std::vector<char> flags(static_cast<size_t>(mesh.num_vertices()), 0);
+  for (const auto& loop : boundary_loops(mesh))
+    for (int v : loop) flags[static_cast<size_t>(v)] = 1;
+  return flags;
+}
+
 namespace {
 
 std::vector<std::vector<int>> loops_from(const std::vector<EdgeUse>& h) {

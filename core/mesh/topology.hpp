@@ -48,6 +48,9 @@ std::vector<EdgeUse> sorted_edge_uses(const Faces& F);
 /// edge-manifold mesh.
 std::vector<std::vector<int>> boundary_loops(const TriMesh& mesh);
 
+/// 1 for each vertex on one of boundary_loops(mesh), else 0. Same precondition.
+std::vector<char> boundary_flags(const TriMesh& mesh);
+
 /// Whether a mesh of this topology can be mapped onto the domain, and if not, why; empty
 /// string when it fits (a closed genus-0 mesh asked onto the disk is told to use cut_hole).
 std::string domain_mismatch(const Topology& t, Domain d);

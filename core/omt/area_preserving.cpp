@@ -73,14 +73,6 @@ bool refines(const AreaPreservingOptions& opt, const AreaPreservingMap& map) {
   return opt.refine.enabled && opt.t == 0 && map.folded_faces == 0;
 }
 
-// 1 for the vertices on m's boundary, else 0.
-std::vector<char> boundary_flags(const mesh::TriMesh& m) {
-  std::vector<char> flags(m.num_vertices(), 0);
-  for (const auto& loop : mesh::boundary_loops(m))
-    for (int v : loop) flags[v] = 1;
-  return flags;
-}
-
 // The refinement's plan (area_refinement.hpp), made by `make` on a second thread while this
 // one computes the conformal map and the transport: its analysis depends on the mesh alone,
 // and those stages are serial for the most part (the 100K-vertex disk map ran 12.5 s of CPU
@@ -156,7 +148,7 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   const Eigen::VectorXd nu = weighted_masses(m, opt);
   // (The plan's thread finds the boundary itself: an error there waits for the conformal
   // map's checks of the mesh, which name the problem first.)
-  PlanAhead plan = plan_ahead(opt, [&m, &opt] { return plan_disk_refinement(m, boundary_flags(m), opt.refine); });
+  PlanAhead plan = plan_ahead(opt, [&m, &opt] { return plan_disk_refinement(m, mesh::boundary_flags(m), opt.refine); });
   // (1) conformal map phi: S -> D (Alg. 1).
   AreaPreservingMap out = starting_from(conformal::map_to_disk(m, opt.conformal));
   // (2) sites p_i = phi(v_i), masses nu_i scaled to the disk's area pi inside solve_omt;
@@ -187,7 +179,7 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   // The boundary goes to the boundary: a boundary vertex's cell meets the circle, and the
   // vertex is put where the radius through its centroid meets it (this also makes the
   // fixed outline of the repair below convex, as Floater's theorem asks).
-  const std::vector<char> fixed = boundary_flags(m);
+  const std::vector<char> fixed = mesh::boundary_flags(m);
   for (int v = 0; v < nv; ++v)
     if (fixed[v]) {
       const double r = out.positions.row(v).norm();

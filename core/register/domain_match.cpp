@@ -367,13 +367,6 @@ void check_distinct(const std::vector<LandmarkPair>& l, double eps) {
     }
 }
 
-std::vector<char> boundary_of(const mesh::Vertices& points, const mesh::Faces& F) {
-  std::vector<char> out(static_cast<size_t>(points.rows()), 0);
-  for (const auto& loop : mesh::boundary_loops(mesh::TriMesh{points, F}))
-    for (int v : loop) out[static_cast<size_t>(v)] = 1;
-  return out;
-}
-
 void check_vertices(const std::vector<LandmarkPair>& l, Eigen::Index n) {
   for (const auto& x : l)
     if (x.vertex < 0 || x.vertex >= n) invalid("landmark " + x.name + " is not a vertex of the source's domain mesh");
@@ -381,7 +374,7 @@ void check_vertices(const std::vector<LandmarkPair>& l, Eigen::Index n) {
 
 DomainMatch disks_from(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks,
                        MatchStart start) {
-  const std::vector<char> boundary = boundary_of(points, faces);
+  const std::vector<char> boundary = mesh::boundary_flags(mesh::TriMesh{points, faces});
   DomainMatch out;
   using C = std::complex<double>;
   std::vector<C> p, q;
