@@ -122,21 +122,6 @@ void take_idle_workers() {
   if (const int spare = t_pool->unclaimed.exchange(0); spare > 0) omp_set_num_threads(omp_get_max_threads() + spare);
 }
 
-void with_library_loops_serial(const std::function<void()>& f) {
-  if (omp_get_active_level() >= omp_get_max_active_levels()) return f();  // already nested
-  std::exception_ptr failure;
-#pragma omp parallel num_threads(2)
-  {
-#pragma omp single
-    try {
-      f();
-    } catch (...) {
-      failure = std::current_exception();
-    }
-  }
-  if (failure) std::rethrow_exception(failure);
-}
-
 void parallel_for(int n, int workers, const std::function<void(int)>& task) {
   if (n <= 0) return;
   single_threaded_blas();

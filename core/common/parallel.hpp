@@ -31,13 +31,13 @@ void take_idle_workers();
 void single_threaded_blas();
 
 /// Runs f with the OpenMP loops of the libraries it calls on the calling thread alone, and
-/// rethrows f's exception. Debian's CHOLMOD 3 opens an OpenMP team of 4 threads (a
-/// compile-time count) for every supernode's small zeroing, copy and scatter loops of a
-/// supernodal factorization: 1.1M teams in one 100K-vertex disk map, each waking sleeping
-/// threads through futexes (the programs idle passively). Here f runs inside a team of two
-/// where one thread waits, so those loops are nested and run serially (libgomp's default of
-/// one active level; with OMP_MAX_ACTIVE_LEVELS raised they stay parallel, as before). Our
-/// own OpenMP loops inside f are serialized too: f should be the factorization alone.
+/// rethrows f's exception. Debian's CHOLMOD 3 opens an OpenMP region (num_threads(4), most
+/// of them with a false `if`) for every supernode's small zeroing, copy and scatter loops of
+/// a supernodal factorization: 1.1M regions in one 100K-vertex disk map. Outside any OpenMP
+/// team, those regions run inline on this thread, with no team and no system call
+/// (library_loops.cpp); inside one, f runs in a nested team, where libgomp's default of one
+/// active level makes them serial. Our own OpenMP loops inside f are serialized too: f
+/// should be the factorization alone.
 void with_library_loops_serial(const std::function<void()>& f);
 
 /// The CPUs this process may use, at least 1: the CPUs of its affinity mask (taskset,
