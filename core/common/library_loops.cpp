@@ -11,7 +11,8 @@
 // This file defines GOMP_parallel in our programs. The dynamic linker binds CHOLMOD's call
 // (and our own loops') to it before libgomp's; it forwards to libgomp's, except on a thread
 // inside with_library_loops_serial and outside any OpenMP team, where it runs the region's
-// body at once on the calling thread. That is exactly a team of one: the body finds itself
+// body at once on the calling thread. To the body that is a team of one, except that
+// omp_get_level() and omp_in_parallel() say it is outside any region: it finds itself
 // thread 0 of 1 (omp_get_thread_num, omp_get_num_threads), its static loops take every
 // index, and its barriers, having no team, return at once. (CHOLMOD's only other OpenMP
 // entries are those two queries; nm -D libcholmod.so.3.)
