@@ -23,7 +23,7 @@ using namespace regular;
 
 struct PowerDiagrams::Triangulation {
   RT rt;
-  std::vector<RT::Vertex_handle> vertex;  // by site
+  std::vector<RT::Face_handle> faces;     // rt's finite faces (flips keep them; filled by the first)
   Eigen::VectorXd psi;                    // the offsets rt is regular for
 };
 
@@ -308,7 +308,7 @@ const PowerDiagrams::Triangulation* PowerDiagrams::regular(const Eigen::VectorXd
                                                            Triangulation& fresh) const {
   const int n = static_cast<int>(sites_.rows());
   const Reweighted flipped =
-      last_ ? reweight_by_flips(last_->rt, last_->vertex, sites_, last_->psi, psi, fail_if_hidden) : Reweighted::kStuck;
+      last_ ? reweight_by_flips(last_->rt, last_->faces, sites_, last_->psi, psi, fail_if_hidden) : Reweighted::kStuck;
   if (flipped == Reweighted::kHidden) return nullptr;
   if (flipped == Reweighted::kRegular) {
     last_->psi = psi;
@@ -320,9 +320,7 @@ const PowerDiagrams::Triangulation* PowerDiagrams::regular(const Eigen::VectorXd
     return &fresh;
   if (!last_) last_ = std::make_unique<Triangulation>();
   last_->rt.swap(fresh.rt);
-  last_->vertex.assign(n, RT::Vertex_handle());
-  for (auto v = last_->rt.finite_vertices_begin(); v != last_->rt.finite_vertices_end(); ++v)
-    last_->vertex[v->info()] = v;
+  last_->faces.clear();
   last_->psi = psi;
   return last_.get();
 }

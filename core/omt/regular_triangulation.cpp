@@ -43,12 +43,15 @@ bool triangulate(const Points& sites, const Eigen::VectorXd& psi, const std::vec
   return !(fail_if_hidden && rt.number_of_hidden_vertices() > 0);
 }
 
-Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& vertex, const Points& sites,
-                             const Eigen::VectorXd& old_psi, const Eigen::VectorXd& psi, bool stop_if_hidden) {
+Reweighted reweight_by_flips(RT& rt, std::vector<RT::Face_handle>& faces, const Points& sites,
+                             const Eigen::VectorXd& old_psi, const Eigen::VectorXd& psi,
+                             bool stop_if_hidden) {
   const int n = static_cast<int>(sites.rows());
   if (rt.dimension() != 2) return Reweighted::kStuck;
+  // In the vertices' memory order (the offsets are the smaller array to read at random).
   auto set_weights = [&](const Eigen::VectorXd& offsets) {
-    for (int i = 0; i < n; ++i) vertex[i]->point() = WP(vertex[i]->point().point(), 2 * offsets[i]);
+    for (auto v = rt.finite_vertices_begin(); v != rt.finite_vertices_end(); ++v)
+      v->point() = WP(v->point().point(), 2 * offsets[v->info()]);
   };
   set_weights(psi);
   const PowerTest power;
@@ -63,10 +66,30 @@ Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& verte
     return power(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point(),
                  g->vertex(rt.mirror_index(f, i))->point()) == CGAL::ON_POSITIVE_SIDE;
   };
+  // The first pass reads each interior edge once from the faces (no edge lookup), on every
+  // core, and queues only those the new weights made irregular, in the faces' order. An
+  // edge's regularity depends on its two faces alone, and a flip queues the four edges whose
+  // faces it changed, so no other edge can turn irregular later without being queued.
+  if (faces.empty()) {
+    faces.reserve(rt.number_of_faces());
+    for (auto f = rt.finite_faces_begin(); f != rt.finite_faces_end(); ++f) faces.push_back(f);
+  }
+  const long nf = static_cast<long>(faces.size());
+  std::vector<char> irregular(3 * faces.size(), 0);
+#pragma omp parallel for schedule(static)
+  for (long k = 0; k < nf; ++k) {
+    const RT::Face_handle f = faces[k];
+    for (int i = 0; i < 3; ++i) {
+      const RT::Face_handle g = f->neighbor(i);
+      if (rt.is_infinite(g) || !(f < g)) continue;  // each interior edge once
+      irregular[3 * k + i] = power(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point(),
+                                   g->vertex(rt.mirror_index(f, i))->point()) == CGAL::ON_POSITIVE_SIDE;
+    }
+  }
   std::vector<Edge> queue, stuck, flipped;
-  queue.reserve(3 * static_cast<size_t>(n));
-  for (auto e = rt.finite_edges_begin(); e != rt.finite_edges_end(); ++e)
-    queue.emplace_back(e->first->vertex(RT::cw(e->second)), e->first->vertex(RT::ccw(e->second)));
+  for (long k = 0; k < nf; ++k)
+    for (int i = 0; i < 3; ++i)
+      if (irregular[3 * k + i]) queue.emplace_back(faces[k]->vertex(RT::cw(i)), faces[k]->vertex(RT::ccw(i)));
   const size_t max_flips = 20 * static_cast<size_t>(n) + 1000;
   bool ok = true, hidden = false;
   while (ok && !queue.empty()) {

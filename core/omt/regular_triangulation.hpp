@@ -88,7 +88,10 @@ bool triangulate(const Points& sites, const Eigen::VectorXd& psi, const std::vec
 // the triangulation anew. A Newton step moves few edges, so the flips cost a fraction of
 // a new triangulation (mostly CGAL's insertions; figures in bench/RESULTS.md).
 enum class Reweighted { kRegular, kHidden, kStuck };
-Reweighted reweight_by_flips(RT& rt, const std::vector<RT::Vertex_handle>& vertex, const Points& sites,
-                             const Eigen::VectorXd& old_psi, const Eigen::VectorXd& psi, bool stop_if_hidden);
+// `faces` caches rt's finite faces between calls: a flip of an edge between two finite faces
+// reuses both, so the set stays; pass it empty for a new triangulation.
+Reweighted reweight_by_flips(RT& rt, std::vector<RT::Face_handle>& faces, const Points& sites,
+                             const Eigen::VectorXd& old_psi, const Eigen::VectorXd& psi,
+                             bool stop_if_hidden);
 
 }  // namespace brenier::omt::regular
