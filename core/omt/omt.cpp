@@ -354,7 +354,10 @@ class Directions {
     // cycle near its optimum of ~3 Newton steps. Not in the quadratic phase (error below
     // 1e-2): two or three steps remain, and at 1M sites a factorization costs seconds.
     constexpr int kBudget = 30, kRefactorAfter = 20;
-    auto apply = [&](const Eigen::VectorXd& x) { return Eigen::VectorXd(H * x); };
+    // H is symmetric: H^T x is H x, and Eigen splits a row-major product's rows over the
+    // OpenMP threads (the column-major one runs on one). Each row sums its entries in column
+    // order, as the column-major product does: the same bits, for any thread count.
+    auto apply = [&](const Eigen::VectorXd& x) { return Eigen::VectorXd(H.transpose() * x); };
     auto precondition = [&](const Eigen::VectorXd& x) { return Eigen::VectorXd(llt_.solve(x)); };
     Eigen::VectorXd d;
     numeric::KrylovResult kr;
