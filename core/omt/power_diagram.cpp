@@ -39,6 +39,7 @@ void neighbour_lists(int n, const std::vector<std::pair<int, int>>& pairs, std::
   for (auto [a, b] : pairs) nbr[fill[a]++] = b, nbr[fill[b]++] = a;
   // Each cell is cut by its neighbours in index order, so the round-off of a cell does not
   // depend on how the triangulation was built or traversed (same input, same bits).
+#pragma omp parallel for schedule(static)
   for (int i = 0; i < n; ++i) std::sort(nbr.begin() + start[i], nbr.begin() + start[i + 1]);
 }
 
