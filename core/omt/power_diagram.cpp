@@ -23,7 +23,7 @@ using namespace regular;
 
 struct PowerDiagrams::Triangulation {
   RT rt;
-  std::vector<RT::Face_handle> faces;     // rt's finite faces (flips keep them; filled by the first)
+  std::vector<RT::Face_handle> faces;     // rt's finite faces, listed by the first flips (flips keep them)
   Eigen::VectorXd psi;                    // the offsets rt is regular for
 };
 
