@@ -57,14 +57,17 @@ Reweighted reweight_by_flips(RT& rt, std::vector<RT::Face_handle>& faces, const 
   const PowerTest power;
   const auto orientation = Traits().orientation_2_object();
   using Edge = std::pair<RT::Vertex_handle, RT::Vertex_handle>;
-  // Whether edge e is still there, between two finite faces, with the vertex across from
-  // face f strictly inside f's power circle (f, i: the edge as face and opposite index).
-  auto violates = [&](const Edge& e, RT::Face_handle& f, int& i) {
-    if (!rt.is_edge(e.first, e.second, f, i)) return false;
+  // Whether edge (f, i) -- the edge as face and opposite index -- lies between two finite
+  // faces with the vertex across from f strictly inside f's power circle.
+  auto irregular_at = [&](RT::Face_handle f, int i) {
     const RT::Face_handle g = f->neighbor(i);
     if (rt.is_infinite(f) || rt.is_infinite(g)) return false;  // a hull edge stays
     return power(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point(),
                  g->vertex(rt.mirror_index(f, i))->point()) == CGAL::ON_POSITIVE_SIDE;
+  };
+  // Whether edge e is still there, and irregular (f, i: where it is).
+  auto violates = [&](const Edge& e, RT::Face_handle& f, int& i) {
+    return rt.is_edge(e.first, e.second, f, i) && irregular_at(f, i);
   };
   // The first pass reads each interior edge once from the faces (no edge lookup), on every
   // core, and queues only those the new weights made irregular, in the faces' order. An
@@ -79,12 +82,8 @@ Reweighted reweight_by_flips(RT& rt, std::vector<RT::Face_handle>& faces, const 
 #pragma omp parallel for schedule(static)
   for (long k = 0; k < nf; ++k) {
     const RT::Face_handle f = faces[k];
-    for (int i = 0; i < 3; ++i) {
-      const RT::Face_handle g = f->neighbor(i);
-      if (rt.is_infinite(g) || !(f < g)) continue;  // each interior edge once
-      irregular[3 * k + i] = power(f->vertex(0)->point(), f->vertex(1)->point(), f->vertex(2)->point(),
-                                   g->vertex(rt.mirror_index(f, i))->point()) == CGAL::ON_POSITIVE_SIDE;
-    }
+    for (int i = 0; i < 3; ++i)
+      if (f < f->neighbor(i)) irregular[3 * k + i] = irregular_at(f, i);  // each edge from one side
   }
   std::vector<Edge> queue, stuck, flipped;
   for (long k = 0; k < nf; ++k)
