@@ -1,4 +1,8 @@
-// with_library_loops_serial (parallel.hpp), and the libgomp entry it needs.
+// Two entries of the system's libraries that this file defines in our programs, so that a
+// library's work does not depend on what other threads do: libgomp's GOMP_parallel (for
+// with_library_loops_serial, parallel.hpp) and the C library's rand()/srand() (below).
+//
+// ## GOMP_parallel
 //
 // Debian's CHOLMOD 3 runs small loops of its supernodal factorization (zeroing, copying and
 // scattering each supernode) as `#pragma omp parallel for num_threads(4) if (...)`, and GCC
@@ -16,7 +20,24 @@
 // thread 0 of 1 (omp_get_thread_num, omp_get_num_threads), its static loops take every
 // index, and its barriers, having no team, return at once. (CHOLMOD's only other OpenMP
 // entries are those two queries; nm -D libcholmod.so.3.)
+//
+// ## rand() and srand(), a state per thread
+//
+// METIS, through CHOLMOD's nested-dissection ordering (the area refinement's, NESDIS), makes
+// its random choices with the C library's rand(), after an srand() of a fixed seed at each
+// call: the same graph gives the same ordering only while no other thread draws from the
+// process-wide state meanwhile. brenierd's libraries draw from it too (gRPC and c-ares
+// import rand), and a job's ordering changed with them: the lion-head refinement's factor
+// then differed, and the map by up to 1.5e-10 from brenier-compute's (3 jobs of 81 under
+// load; the CI run of session 51's work caught one). Here every thread has its own state,
+// the glibc generator's (TYPE_3, 128 bytes of state, seed 1 until srand), so a thread's
+// sequence is what rand() gives a program with one thread, whatever others draw. Those
+// libraries' draws are no less random for it: none of our programs seeds rand, so its
+// sequence was the same in every process already. (nm -D
+// libmetis.so.5: rand and srand are its only entries of that kind.) The linker exports both
+// (core/CMakeLists.txt), so that METIS binds to them.
 #include <dlfcn.h>
+#include <stdlib.h>
 #include <omp.h>
 
 #include <cstdio>
@@ -82,3 +103,27 @@ extern "C" void GOMP_parallel(void (*fn)(void*), void* data, unsigned num_thread
   if (brenier::t_regions_inline) return fn(data);
   brenier::libgomp_parallel()(fn, data, num_threads, flags);
 }
+
+namespace {
+
+// The glibc generator rand() uses, as initstate(1, state, 128) sets it up, per thread.
+struct ThreadRandom {
+  char state[128];
+  random_data data{};
+  ThreadRandom() { initstate_r(1, state, sizeof state, &data); }
+};
+
+random_data& thread_random() {
+  thread_local ThreadRandom r;
+  return r.data;
+}
+
+}  // namespace
+
+extern "C" int rand() noexcept {
+  int32_t r = 0;
+  random_r(&thread_random(), &r);
+  return r;
+}
+
+extern "C" void srand(unsigned seed) noexcept { srandom_r(seed, &thread_random()); }

@@ -82,8 +82,11 @@ Reweighted reweight_by_flips(RT& rt, std::vector<RT::Face_handle>& faces, const 
 #pragma omp parallel for schedule(static)
   for (long k = 0; k < nf; ++k) {
     const RT::Face_handle f = faces[k];
+    // Each edge from one side: the face along whose counter-clockwise order its endpoints'
+    // site numbers rise (not the faces' addresses, which differ between processes: the
+    // queue's order, and so the flips', is the same in brenierd as in brenier-compute).
     for (int i = 0; i < 3; ++i)
-      if (f < f->neighbor(i)) irregular[3 * k + i] = irregular_at(f, i);  // each edge from one side
+      if (f->vertex(RT::ccw(i))->info() < f->vertex(RT::cw(i))->info()) irregular[3 * k + i] = irregular_at(f, i);
   }
   std::vector<Edge> queue, stuck, flipped;
   for (long k = 0; k < nf; ++k)

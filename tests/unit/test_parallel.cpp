@@ -10,6 +10,7 @@
 #include <Eigen/SparseCore>
 #include <atomic>
 #include <chrono>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
@@ -198,4 +199,73 @@ TEST(LibraryLoopsSerial, ALibrarysRegionsRunInlineAndResultsDoNotChange) {
   // Under clang the team is libomp's, which libgomp does not see.
   EXPECT_EQ(nested.bodies, 1);
 #endif
+}
+
+namespace {
+
+// CHOLMOD's nested-dissection ordering (METIS's separators) of an n x n grid Laplacian's
+// pattern: the fill-reducing permutation the area refinement factors with.
+std::vector<int> nesdis_permutation(int n) {
+  std::vector<Eigen::Triplet<double>> t;
+  auto id = [n](int i, int j) { return i * n + j; };
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j) {
+      t.emplace_back(id(i, j), id(i, j), 4.0);
+      if (i + 1 < n) t.emplace_back(id(i + 1, j), id(i, j), -1.0);
+      if (j + 1 < n) t.emplace_back(id(i, j + 1), id(i, j), -1.0);
+      if (i + 1 < n && j + 1 < n) t.emplace_back(id(i + 1, j + 1), id(i, j), -0.5);
+    }
+  Eigen::SparseMatrix<double> A(n * n, n * n);
+  A.setFromTriplets(t.begin(), t.end());  // the lower triangle
+  cholmod_common c;
+  cholmod_start(&c);
+  c.print = 0;
+  c.nmethods = 1;
+  c.method[0].ordering = CHOLMOD_NESDIS;
+  cholmod_sparse view = Eigen::viewAsCholmod(A);
+  view.stype = -1;
+  cholmod_factor* L = cholmod_analyze(&view, &c);
+  EXPECT_NE(L, nullptr);
+  std::vector<int> perm;
+  if (L != nullptr) {
+    const int* p = static_cast<const int*>(L->Perm);
+    perm.assign(p, p + L->n);
+  }
+  cholmod_free_factor(&L, &c);
+  cholmod_finish(&c);
+  return perm;
+}
+
+}  // namespace
+
+// METIS draws its separators' random choices from the C library's rand(), reseeded at each
+// call, and brenierd's other threads call rand() too: the ordering, and through it a map's
+// last bits, depended on what those threads did meanwhile (a brenierd job's lion-head
+// refinement differed from brenier-compute's by 1e-10 in 3 runs of 80 under load). Our
+// programs give every thread a rand() state of its own (library_loops.cpp), so the ordering
+// is the same whatever another thread draws.
+TEST(LibraryState, AnOrderingIsTheSameWhileAnotherThreadDrawsRandomNumbers) {
+  const std::vector<int> alone = nesdis_permutation(120);
+  ASSERT_EQ(alone.size(), 120u * 120u);
+  std::atomic<bool> stop{false};
+  std::atomic<long> draws{0};
+  std::thread other([&] {
+    std::srand(7);
+    while (!stop.load()) {
+      (void)std::rand();
+      draws.fetch_add(1, std::memory_order_relaxed);
+    }
+  });
+  std::vector<std::vector<int>> busy;
+  for (int k = 0; k < 5; ++k) busy.push_back(nesdis_permutation(120));
+  stop = true;
+  other.join();
+  EXPECT_GT(draws.load(), 0);
+  for (const std::vector<int>& p : busy) EXPECT_TRUE(p == alone) << "the ordering changed with another thread's draws";
+  // And a thread's own sequence is the C library's: srand(s) then rand() repeats exactly.
+  std::srand(12345);
+  const int a = std::rand(), b = std::rand();
+  std::srand(12345);
+  EXPECT_EQ(std::rand(), a);
+  EXPECT_EQ(std::rand(), b);
 }
