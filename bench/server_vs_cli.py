@@ -38,6 +38,8 @@ def max_gap(a, b):
 
 
 def start_server(brenierd, data, port_file):
+    if os.path.exists(port_file):
+        os.remove(port_file)  # the last server's
     proc = subprocess.Popen([brenierd, "--listen", "127.0.0.1:0", "--data", data, "--port-file", port_file,
                              "--log-level", "warn", "--workers", "1"])
     for _ in range(1000):
