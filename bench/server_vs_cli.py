@@ -15,10 +15,11 @@ import argparse
 import multiprocessing
 import os
 import shutil
-import signal
 import subprocess
 import sys
-import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests", "service"))
+from servertest import Server  # noqa: E402  (starts brenierd on an ephemeral port)
 
 
 def spin(_):
@@ -35,24 +36,6 @@ def max_gap(a, b):
     if len(a) != len(b):
         return float("inf")
     return max((max(abs(p[0] - q[0]), abs(p[1] - q[1])) for p, q in zip(a, b)), default=0.0)
-
-
-def start_server(brenierd, data, port_file):
-    if os.path.exists(port_file):
-        os.remove(port_file)  # the last server's
-    proc = subprocess.Popen([brenierd, "--listen", "127.0.0.1:0", "--data", data, "--port-file", port_file,
-                             "--log-level", "warn", "--workers", "1"])
-    for _ in range(1000):
-        if os.path.exists(port_file):
-            with open(port_file) as f:
-                port = f.read().strip()
-            if port:
-                return proc, f"127.0.0.1:{port}"
-        if proc.poll() is not None:
-            sys.exit("brenierd exited at start")
-        time.sleep(0.02)
-    proc.kill()
-    sys.exit("brenierd did not start")
 
 
 def main():
@@ -80,8 +63,8 @@ def main():
     differing, total, gaps = 0, 0, []
     try:
         for s in range(a.servers):
-            data = os.path.join(a.work, f"data{s}")
-            proc, address = start_server(brenierd, data, os.path.join(a.work, "port"))
+            server = Server(brenierd, a.work, "--workers", "1")  # a fresh data folder each time
+            address = server.address
             try:
                 for j in range(a.jobs):
                     out = os.path.join(a.work, "server.obj")
@@ -94,9 +77,7 @@ def main():
                         gaps.append(gap)
                     print(f"server {s} job {j}: max |uv - CLI uv| = {gap:.3g}", flush=True)
             finally:
-                proc.send_signal(signal.SIGTERM)
-                proc.wait(timeout=60)
-                shutil.rmtree(data, ignore_errors=True)
+                server.stop()
     finally:
         if pool:
             pool.terminate()
