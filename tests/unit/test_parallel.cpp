@@ -124,9 +124,8 @@ Region& library_region(Region& r) {
   return r;
 }
 
-// A supernodal factorization of a grid Laplacian (n x n unknowns, a Dirichlet boundary)
-// solved for one right-hand side.
-Eigen::VectorXd grid_solve(int n) {
+// A grid Laplacian (n x n unknowns, a Dirichlet boundary), both triangles.
+Eigen::SparseMatrix<double> grid_laplacian(int n) {
   std::vector<Eigen::Triplet<double>> t;
   auto id = [n](int i, int j) { return i * n + j; };
   for (int i = 0; i < n; ++i)
@@ -137,6 +136,12 @@ Eigen::VectorXd grid_solve(int n) {
     }
   Eigen::SparseMatrix<double> A(n * n, n * n);
   A.setFromTriplets(t.begin(), t.end());
+  return A;
+}
+
+// grid_laplacian(n) factored supernodally and solved for one right-hand side.
+Eigen::VectorXd grid_solve(int n) {
+  const Eigen::SparseMatrix<double> A = grid_laplacian(n);
   brenier::single_threaded_blas();
   Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt;
   llt.cholmod().print = 0;
@@ -203,27 +208,17 @@ TEST(LibraryLoopsSerial, ALibrarysRegionsRunInlineAndResultsDoNotChange) {
 
 namespace {
 
-// CHOLMOD's nested-dissection ordering (METIS's separators) of an n x n grid Laplacian's
-// pattern: the fill-reducing permutation the area refinement factors with.
+// CHOLMOD's nested-dissection ordering (METIS's separators) of grid_laplacian(n)'s pattern:
+// the kind of fill-reducing permutation the area refinement factors with.
 std::vector<int> nesdis_permutation(int n) {
-  std::vector<Eigen::Triplet<double>> t;
-  auto id = [n](int i, int j) { return i * n + j; };
-  for (int i = 0; i < n; ++i)
-    for (int j = 0; j < n; ++j) {
-      t.emplace_back(id(i, j), id(i, j), 4.0);
-      if (i + 1 < n) t.emplace_back(id(i + 1, j), id(i, j), -1.0);
-      if (j + 1 < n) t.emplace_back(id(i, j + 1), id(i, j), -1.0);
-      if (i + 1 < n && j + 1 < n) t.emplace_back(id(i + 1, j + 1), id(i, j), -0.5);
-    }
-  Eigen::SparseMatrix<double> A(n * n, n * n);
-  A.setFromTriplets(t.begin(), t.end());  // the lower triangle
+  Eigen::SparseMatrix<double> A = grid_laplacian(n);
   cholmod_common c;
   cholmod_start(&c);
   c.print = 0;
   c.nmethods = 1;
   c.method[0].ordering = CHOLMOD_NESDIS;
   cholmod_sparse view = Eigen::viewAsCholmod(A);
-  view.stype = -1;
+  view.stype = -1;  // symmetric: its lower triangle is read
   cholmod_factor* L = cholmod_analyze(&view, &c);
   EXPECT_NE(L, nullptr);
   std::vector<int> perm;
