@@ -322,14 +322,31 @@ double kmt_floor(const Domain& domain, const Points& sites, const OmtResult& r) 
 class Directions {
  public:
   Directions(bool sphere, int n, OmtResult& r) : r_(r) {
-    // Simplicial below 200K sites, supernodal above: the supernodes of a planar Laplacian
-    // are small, and on one BLAS thread their dense calls cost more than they save until
-    // then. CHOLMOD's own choice (CHOLMOD_AUTO) took supernodal at 5K. The sphere keeps
-    // supernodal: with simplicial, one sphere mesh's map (man) kept a fold torn across the
-    // sphere until area_preserving_sphere's fourth try (figures: bench/RESULTS.md).
-    constexpr int kSupernodalFrom = 200000;
+    // Planar domains from 20K sites: supernodal factorizations, converted at their end to a
+    // packed simplicial LL^T below 500K sites. The supernodal kernels factor a 100K-site
+    // Hessian in 0.085 s against the simplicial code's 0.22 s; but GMRES applies a kept
+    // factor 20-30 times, and one right-hand side through a supernodal factor (a dtrsv per
+    // supernode) costs more than through a simplicial one, which is why simplicial alone was
+    // faster below 200K. CHOLMOD's final_* settings convert the factor once it is made, and
+    // final_resymbol drops the zeros of the relaxed supernodes. omt-bench Gaussian: 20K
+    // even, 30K -3 %, 100K 2.82 -> 2.57 s, 200K 7.9 -> 7.5 s; the 100K-vertex disk map
+    // 6.2-6.5 -> 6.0 s. At 1M the time is even and the conversion adds 119 MB, so it stays
+    // supernodal there; below 20K simplicial alone is as fast (bench/RESULTS.md, session 53).
+    // The sphere keeps supernodal, unconverted: with simplicial, one sphere mesh's map (man)
+    // kept a fold torn across the sphere until area_preserving_sphere's fourth try.
+    constexpr int kSupernodalFrom = 20000, kConvertedBelow = 500000;
     single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
-    llt_.setMode(sphere || n >= kSupernodalFrom ? Eigen::CholmodSupernodalLLt : Eigen::CholmodSimplicialLLt);
+    const bool supernodal = sphere || n >= kSupernodalFrom;
+    llt_.setMode(supernodal ? Eigen::CholmodSupernodalLLt : Eigen::CholmodSimplicialLLt);
+    if (supernodal && !sphere && n < kConvertedBelow) {
+      cholmod_common& c = llt_.cholmod();
+      c.final_asis = 0;  // convert: to a simplicial, packed, monotonic LL^T without the zeros
+      c.final_super = 0;
+      c.final_ll = 1;
+      c.final_pack = 1;
+      c.final_monotonic = 1;
+      c.final_resymbol = 1;
+    }
     llt_.cholmod().print = 0;
     // AMD alone: by default CHOLMOD also tries METIS when AMD's fill is high, which at 1M
     // sites cost far more ordering time than the fill it saved (bench/RESULTS.md).

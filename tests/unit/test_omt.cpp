@@ -265,6 +265,24 @@ TEST(Omt, MassesEqualTargetsAtConvergence) {
   }
 }
 
+TEST(Omt, ASolveLargeEnoughForSupernodalFactorsReachesItsTargets) {
+  // From 20K sites the Newton factors are supernodal, converted to simplicial for GMRES's
+  // solves (omt.cpp's Directions): the transport must meet every target as the smaller
+  // solves above do, with the Gaussian's e^8 mass ratio.
+  const int n = 30000;
+  Points y = random_in_disk(n, 7);
+  Eigen::VectorXd nu(n);
+  for (int i = 0; i < n; ++i) nu[i] = std::exp(-8 * y.row(i).squaredNorm());
+  omt::OmtOptions opt;
+  opt.tolerance = 1e-9;
+  auto r = omt::solve_omt(Domain::unit_disk(), y, nu, opt);
+  ASSERT_TRUE(r.converged) << r.max_relative_error << " after " << r.iterations;
+  EXPECT_EQ(r.cells.empty_cells, 0);
+  EXPECT_LE(max_relative(r.cells.mass, r.target), 1e-9);
+  EXPECT_NEAR(r.cells.mass.sum(), std::numbers::pi, 1e-9);
+  EXPECT_GE(r.factorizations, 2);
+}
+
 TEST(Omt, TheDualGapTestStopsOnceTheCostIsKnown) {
   // The Kantorovich dual D(h) is a lower bound of the transport cost W2^2, reached at the
   // solution; the Newton decrement predicts the rest. Stopped by the gap test, D + decrement
