@@ -12,6 +12,7 @@
 #include "common/check.hpp"
 #include "common/error.hpp"
 #include "common/parallel.hpp"
+#include "numeric/cholmod_settings.hpp"
 #include "numeric/krylov.hpp"
 
 namespace brenier::conformal {
@@ -112,6 +113,12 @@ namespace {
 // Laplacian H on the free vertices (positive definite: Delaunay weights, one vertex pinned),
 // kept across iterations. Supernodal LL^T (BLAS-3; with OpenBLAS about twice as fast as a
 // simplicial LDL^T of the indefinite J at 133K vertices); LDL^T if round-off defeats LL^T.
+// GMRES applies the kept factor 30-60 times, and one right-hand side goes through a
+// simplicial factor faster than through a supernodal one (a dtrsv per supernode), so each
+// factor is converted once it is made (numeric::convert_factors_for_solves), as the planar
+// transport's are: the 100K-vertex disk's conformal map 1.10-1.22 -> 1.03-1.09 s,
+// mannequin-devil 0.118-0.123 -> 0.102-0.104 s, bunny00 on the sphere 0.42 -> 0.39-0.40 s
+// (bench/RESULTS.md, session 53).
 struct KeptFactor {
   Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt;
   Eigen::CholmodSimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
@@ -132,6 +139,7 @@ struct KeptFactor {
     single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
     llt.cholmod().print = 0;  // CHOLMOD's own messages off; failures are checked via info()
     ldlt.cholmod().print = 0;
+    numeric::convert_factors_for_solves(llt.cholmod());
   }
   bool factor(const Eigen::SparseMatrix<double>& H, const std::vector<int>& index) {
     vertex_of_row.assign(H.rows(), -1);

@@ -12,6 +12,7 @@
 #include "common/check.hpp"
 #include "common/error.hpp"
 #include "common/parallel.hpp"
+#include "numeric/cholmod_settings.hpp"
 #include "numeric/krylov.hpp"
 #include "omt/coarse_to_fine.hpp"
 
@@ -327,10 +328,10 @@ class Directions {
     // Hessian in 0.085 s against the simplicial code's 0.22 s; but GMRES applies a kept
     // factor 20-30 times, and one right-hand side through a supernodal factor (a dtrsv per
     // supernode) costs more than through a simplicial one, which is why simplicial alone was
-    // faster below 200K. CHOLMOD's final_* settings convert the factor once it is made, and
-    // final_resymbol drops the zeros of the relaxed supernodes. omt-bench Gaussian: 20K
-    // even, 30K -3 %, 100K 2.82 -> 2.57 s, 200K 7.9 -> 7.5 s; the 100K-vertex disk map
-    // 6.2-6.5 -> 6.0 s. At 1M the time is even and the conversion adds 119 MB, so it stays
+    // faster below 200K. CHOLMOD converts the factor once it is made
+    // (numeric::convert_factors_for_solves). omt-bench Gaussian, alternated: 20K even, 30K
+    // -3 %, 100K 2.37-2.45 -> 2.24-2.29 s, 200K 8.5 -> 7.6 s; the 100K-vertex disk map
+    // 5.7-5.8 -> 5.6 s. At 1M the time is even and the conversion adds 119 MB, so it stays
     // supernodal there; below 20K simplicial alone is as fast (bench/RESULTS.md, session 53).
     // The sphere keeps supernodal, unconverted: with simplicial, one sphere mesh's map (man)
     // kept a fold torn across the sphere until area_preserving_sphere's fourth try.
@@ -338,15 +339,7 @@ class Directions {
     single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
     const bool supernodal = sphere || n >= kSupernodalFrom;
     llt_.setMode(supernodal ? Eigen::CholmodSupernodalLLt : Eigen::CholmodSimplicialLLt);
-    if (supernodal && !sphere && n < kConvertedBelow) {
-      cholmod_common& c = llt_.cholmod();
-      c.final_asis = 0;  // convert: to a simplicial, packed, monotonic LL^T without the zeros
-      c.final_super = 0;
-      c.final_ll = 1;
-      c.final_pack = 1;
-      c.final_monotonic = 1;
-      c.final_resymbol = 1;
-    }
+    if (supernodal && !sphere && n < kConvertedBelow) numeric::convert_factors_for_solves(llt_.cholmod());
     llt_.cholmod().print = 0;
     // AMD alone: by default CHOLMOD also tries METIS when AMD's fill is high, which at 1M
     // sites cost far more ordering time than the fill it saved (bench/RESULTS.md).
