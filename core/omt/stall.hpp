@@ -37,16 +37,23 @@ class StallWatch {
            (k > static_cast<size_t>(window_) && gnorm > (1 - kStallDecrease) * norms_[k - 1 - window_]);
   }
   /// The step an iteration took (0: none).
-  void took(double t) { creeping_ = t > 0 && t < kCreepingStep ? creeping_ + 1 : 0; }
+  void took(double t) {
+    creeping_ = t > 0 && t < kCreepingStep ? creeping_ + 1 : 0;
+    last_ = t;
+  }
+  /// The step last reported by took() since the start (0: none).
+  double last_step() const { return last_; }
   void restart() {  // a new start (the coarse-to-fine one taken)
     norms_.clear();
     creeping_ = 0;
+    last_ = 0;
   }
 
  private:
   int window_;
   std::vector<double> norms_;
   int creeping_ = 0;  // steps in a row below kCreepingStep
+  double last_ = 0;
 };
 
 /// What follows a coarse-to-fine solve that stalled (OmtOptions::stall_window).
