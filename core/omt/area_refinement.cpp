@@ -378,9 +378,13 @@ struct SphereGeometry {
 // Damped projected Newton on the energy of area_refinement.hpp over the unknowns of Dof: each
 // face's clamped Hessian, in its corners' unknowns, into the global one, whose pattern is
 // fixed (the entries go straight into its values), factored by CHOLMOD; the step is cut to
-// 0.9 of the way to the first degenerate face where that is known in closed form (the plane,
-// along the straight step), then halved until the energy drops by Armijo's rule and the map
-// stays valid (finite energy: no face degenerate or turned over).
+// 0.9 of the way to the first face that degenerates or turns over along it (the plane: the
+// root of a quadratic; the sphere: of a cubic, detail::first_turn_on_sphere), then halved
+// until the energy drops by Armijo's rule and the map stays valid (finite energy: no face
+// degenerate or turned over). On the sphere the cut came in session 55: before it, the
+// halvings alone found t below the first turn, and on the spread starts of crowded conformal
+// maps, where a few faces bound nearly every step at t ~ 0.1-0.3, the 0.9 of the root is up to
+// twice as long (dino 0.059 -> 0.041 mean |log area ratio| in the same budget; bench/RESULTS.md).
 template <class Geometry>
 class FaceNewton {
  public:
@@ -487,8 +491,19 @@ class FaceNewton {
 
   double max_step(const mesh::Vertices& X, const Eigen::VectorXd& d) const {
     if constexpr (!std::is_same_v<Geometry, PlaneGeometry>) {
-      (void)X, (void)d;
-      return std::numeric_limits<double>::infinity();
+      // Each corner's step in 3-D, in its tangent plane at the step's start (limit 2: the step
+      // is cut to 0.9 of the root, and a root past 1 / 0.9 leaves the full step).
+      auto dv = [&](int r) -> Eigen::Vector3d { return geometry_.basis[r] * step_of(r, d); };
+      double best = std::numeric_limits<double>::infinity();
+      const long nf = static_cast<long>(faces_.size());
+#pragma omp parallel for reduction(min : best) schedule(static)
+      for (long k = 0; k < nf; ++k) {
+        const detail::BarrierFace& f = faces_[k];
+        best = std::min(best, detail::first_turn_on_sphere(Geometry::at(X, f.v[0]), Geometry::at(X, f.v[1]),
+                                                           Geometry::at(X, f.v[2]), dv(f.v[0]), dv(f.v[1]),
+                                                           dv(f.v[2]), 2.0));
+      }
+      return best;
     } else {
       auto dv = [&](int r) { return step_of(r, d); };
       double best = std::numeric_limits<double>::infinity();

@@ -15,9 +15,10 @@
 // shapes, which makes the minimizer unique and keeps the triangles from turning into slivers;
 // theta = 0.999, then 0.9999, lets the area term win. The minimization is a projected Newton
 // method (each face's Hessian with its negative eigenvalues clamped, CHOLMOD for the system),
-// the step cut before any face degenerates (the plane: in closed form) and by Armijo's rule;
-// the energy is infinite on a degenerate face, so from a map with no flipped face no face
-// flips, and on the sphere a step is also kept only if the map still covers the sphere once.
+// the step cut before any face degenerates (in closed form on the plane and on the sphere) and
+// by Armijo's rule; the energy is infinite on a degenerate face, so from a map with no flipped
+// face no face flips, and on the sphere a step is also kept only if the map still covers the
+// sphere once.
 // The disk's boundary vertices slide along the circle (a face with three corners there could
 // not change its area if they were held). Stops when the stated tolerances hold (mean and
 // 95th percentile of |log area ratio|) or after the step budget, saying which; on the sphere

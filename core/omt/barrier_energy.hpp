@@ -9,6 +9,8 @@
 #include <Eigen/Geometry>
 #include <array>
 #include <cmath>
+#include <limits>
+#include <utility>
 
 #include "mesh/mesh.hpp"
 
@@ -36,6 +38,58 @@ inline BarrierFace barrier_face(int i, int j, int k, const Eigen::Vector3d& a, c
   f.ref_inv = Q.inverse();
   f.weight = area;
   return f;
+}
+
+// The step bound of the area refinement on the sphere (area_refinement.cpp, FaceNewton::max_step;
+// on the plane the determinant is a quadratic, Smith and Schaefer 2015): the first t in
+// (0, limit) at which the face (a, b, c), its corners moved by the tangent steps t da, t db, t dc
+// and each put back on the unit sphere, turns over (det(a, b, c) reaches 0), or infinity where
+// it does not. Putting a corner back on the sphere scales its row of the determinant by a
+// positive number, so the sign is that of det(a + t da, b + t db, c + t dc), a cubic in t,
+// written from the edges e1 = b - a, e2 = c - a (no cancellation on small faces) as
+// (a + t da) . ((e1 + t de1) x (e2 + t de2)). Between its critical points the cubic is
+// monotone, so the first interval whose end is not positive holds the root, which bisection
+// finds to 1e-6 relative (the step is cut to 0.9 of it). 0 for a face turned over already.
+inline double first_turn_on_sphere(const Eigen::Vector3d& a, const Eigen::Vector3d& b, const Eigen::Vector3d& c,
+                                   const Eigen::Vector3d& da, const Eigen::Vector3d& db, const Eigen::Vector3d& dc,
+                                   double limit) {
+  const Eigen::Vector3d e1 = b - a, e2 = c - a, de1 = db - da, de2 = dc - da;
+  const Eigen::Vector3d n = e1.cross(e2), dn = de1.cross(e2) + e1.cross(de2), ddn = de1.cross(de2);
+  const double c0 = a.dot(n), c1 = da.dot(n) + a.dot(dn), c2 = da.dot(dn) + a.dot(ddn), c3 = da.dot(ddn);
+  auto p = [&](double t) { return c0 + t * (c1 + t * (c2 + t * c3)); };
+  if (!(c0 > 0)) return 0;
+  double ends[3];  // the critical points in (0, limit), roots of 3 c3 t^2 + 2 c2 t + c1, then limit
+  int count = 0;
+  auto keep = [&](double r) {
+    if (r > 0 && r < limit) ends[count++] = r;
+  };
+  if (std::abs(c3) > 1e-300) {
+    const double disc = 4 * c2 * c2 - 12 * c3 * c1;
+    if (disc >= 0) {
+      const double sq = std::sqrt(disc);
+      double r1 = (-2 * c2 - sq) / (6 * c3), r2 = (-2 * c2 + sq) / (6 * c3);
+      if (r1 > r2) std::swap(r1, r2);
+      keep(r1);
+      keep(r2);
+    }
+  } else if (std::abs(c2) > 1e-300) {
+    keep(-c1 / (2 * c2));
+  }
+  ends[count++] = limit;
+  double lo = 0;
+  for (int k = 0; k < count; ++k) {
+    if (p(ends[k]) > 0) {
+      lo = ends[k];
+      continue;
+    }
+    double hi = ends[k];
+    for (int it = 0; it < 60 && hi - lo > 1e-6 * hi; ++it) {
+      const double mid = 0.5 * (lo + hi);
+      (p(mid) > 0 ? lo : hi) = mid;
+    }
+    return lo;
+  }
+  return std::numeric_limits<double>::infinity();
 }
 
 // The area refinement's energy of a face (eps = 0) and its derivatives in D = det J and

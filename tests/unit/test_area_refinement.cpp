@@ -9,7 +9,9 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <limits>
 #include <numbers>
+#include <random>
 
 #include "common/error.hpp"
 #include "mesh/geometry.hpp"
@@ -17,6 +19,7 @@
 #include "mesh/topology.hpp"
 #include "omt/area_preserving.hpp"
 #include "omt/area_refinement.hpp"
+#include "omt/barrier_energy.hpp"
 #include "quality/quality.hpp"
 
 using namespace brenier;
@@ -336,4 +339,59 @@ TEST(AreaRefinement, APlanMadeAheadGivesTheSameMapAndServesOnlyItsOwnMesh) {
   omt::refine_sphere_areas(s, mesh::face_areas(s), B, o, omt::plan_sphere_refinement(s));
   EXPECT_EQ(A, B);
   EXPECT_THROW(omt::refine_sphere_areas(s, mesh::face_areas(s), B, o, plan), Error);
+}
+
+TEST(AreaRefinement, TheSphereStepStopsAtTheFirstFaceThatTurns) {
+  // detail::first_turn_on_sphere, the bound of the sphere's Newton steps, against the sign of
+  // det(a, b, c) sampled along the move itself (each corner x + t dx put back on the sphere):
+  // small and large faces with steps from a tenth of their size to ten times it, so that
+  // some never turn, some turn once, and some turn, come back and turn again within the limit,
+  // where the first crossing must be the one returned.
+  std::mt19937 rng(26);
+  std::normal_distribution<double> normal;
+  auto unit = [&] { return Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized(); };
+  auto tangent = [&](const Eigen::Vector3d& x, double size) {
+    Eigen::Vector3d v(normal(rng), normal(rng), normal(rng));
+    return (size * (v - v.dot(x) * x)).eval();
+  };
+  const double limit = 2;
+  const int samples = 20000;
+  int turned = 0, never = 0, twice = 0;
+  for (int trial = 0; trial < 600; ++trial) {
+    const double size = std::pow(10.0, -3 + 2.5 * (trial % 7) / 6.0);  // 1e-3 .. 0.3
+    const Eigen::Vector3d a = unit();
+    Eigen::Vector3d b = (a + size * tangent(a, 1).normalized()).normalized();
+    Eigen::Vector3d c = (a + size * tangent(a, 1).normalized()).normalized();
+    if (a.dot((b - a).cross(c - a)) < 0) std::swap(b, c);
+    const double reach = size * std::pow(10.0, -1 + 2.0 * (trial % 5) / 4.0);  // 0.1 .. 10 face sizes
+    const Eigen::Vector3d da = tangent(a, reach), db = tangent(b, reach), dc = tangent(c, reach);
+    auto det = [&](double t) {
+      const Eigen::Vector3d A = (a + t * da).normalized(), B = (b + t * db).normalized(), C = (c + t * dc).normalized();
+      return A.dot((B - A).cross(C - A));
+    };
+    double sampled = std::numeric_limits<double>::infinity();
+    int crossings = 0;
+    for (int k = 1; k <= samples; ++k) {
+      const double t = limit * k / samples;
+      if ((det(t) > 0) != (det(limit * (k - 1) / samples) > 0)) {
+        if (crossings++ == 0) sampled = t;
+      }
+    }
+    const double root = omt::detail::first_turn_on_sphere(a, b, c, da, db, dc, limit);
+    if (!std::isfinite(sampled)) {
+      ++never;
+      EXPECT_TRUE(std::isinf(root)) << "trial " << trial << ": a root at " << root << " where det keeps its sign";
+      continue;
+    }
+    ++turned;
+    twice += crossings >= 2;
+    EXPECT_LE(root, sampled + 1e-9) << "trial " << trial;
+    EXPECT_GE(root, sampled - limit / samples - 1e-6 * limit) << "trial " << trial;  // the bisection: 1e-6 relative
+    EXPECT_GT(det(root), 0) << "trial " << trial;                     // still outward at the bound
+    EXPECT_LE(det(root * (1 + 2e-6) + 1e-12), 0) << "trial " << trial;  // and turned just past it
+  }
+  // The draw covers every case.
+  EXPECT_GT(turned, 50);
+  EXPECT_GT(never, 50);
+  EXPECT_GT(twice, 5);
 }
