@@ -547,8 +547,16 @@ void check_targets(const mesh::TriMesh& m, const Eigen::VectorXd& target, const 
 // The staged minimization of area_refinement.hpp: theta = 0.999, then 0.9999, each stage
 // ended when the Newton decrement falls below 1e-7 of the energy or after 50 steps, the
 // whole when the tolerances hold or the budget is spent; the unknowns and the analysed
-// pattern are plan's. Given min_progress, a stage also ends at a step that cuts the mean
-// |log area ratio| by less than that fraction (0: at a step that raises it).
+// pattern are plan's. Given min_progress (the sphere), a stage also ends once kPatience steps
+// in a row have not cut the mean |log area ratio| by that fraction from where it last did (0:
+// have not lowered it), and the map goes back to the stage's best.
+// The sphere stages' patience (refine's min_progress). Until session 55 a stage ended at the
+// first step short of the progress, and kept that step's map: with the steps cut at the first
+// face turning over (FaceNewton::max_step) the mean |log area ratio| no longer falls at every
+// step of the spread starts, and that rule stopped handle at 0.0215 and dino at 0.041 where
+// three steps of patience reach 0.0104 and 0.0229 (bench/RESULTS.md).
+constexpr int kPatience = 3;
+
 template <class Geometry>
 AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
                       RefinementPlan& plan, const AreaRefineOptions& opt, Geometry& geometry,
@@ -599,15 +607,39 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
   for (double theta : {0.999, 0.9999}) {
     if (out.converged || out.iterations >= opt.max_iterations || n == 0) break;
     ++out.stages;
+    // Sphere stages (min_progress given): the map of the stage's least mean |log area ratio|,
+    // and the steps since the last that cut the mean by min_progress (to `progressed`).
+    mesh::Vertices best_X;
+    if (min_progress) best_X = X;
+    quality::Stats best = out.after;
+    double progressed = out.after.mean;
+    int since = 0;
     for (int k = 0; k < 50 && out.iterations < opt.max_iterations && !out.converged; ++k) {
       if (k > 0) set_references();
       double E = 0;
       const double decrement = newton.step(X, theta, E);
       ++out.iterations;
-      const double previous = out.after.mean;
       out.after = abs_log_stats(m.F, X, target);
       out.converged = met(out.after);
-      if (!(decrement > 1e-7 * E) || (min_progress && out.after.mean > (1 - *min_progress) * previous)) break;
+      if (min_progress) {
+        if (out.after.mean < best.mean || out.converged) {
+          best_X = X;
+          best = out.after;
+        }
+        if (out.after.mean <= (1 - *min_progress) * progressed) {
+          progressed = out.after.mean;
+          since = 0;
+        } else if (++since >= kPatience) {
+          break;
+        }
+      }
+      if (!(decrement > 1e-7 * E)) break;
+    }
+    if (min_progress && best.mean < out.after.mean) {
+      X = best_X;
+      out.after = best;
+      out.converged = met(out.after);
+      set_references();
     }
   }
   // The energy is not the measure: where the targets cannot be met (a cube's eight corners, a
@@ -666,14 +698,15 @@ AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd
   // The volume measure first (a barrier against turning, from any start), then, where the
   // tolerances are not met, the chord measure (see SphereGeometry): from the volume stage's
   // result, and if that is still short, from the start too, the better kept. Each chord stage
-  // ends at a step that gains less than 1 %: on the spread starts of the real meshes (cow,
-  // armadillo, man) it creeps (cow 0.01494 to 0.01488 in 29 steps), on the coarse polyhedra it
-  // converges in a few (a cube in 2, corner in 11). Where the volume stage stops short on a
-  // coarse mesh, the chord stage from its result can stall where the one from the start does
-  // not (horizons-domain: 0.50 against 0.005; bench/RESULTS.md). Each volume stage ends at a
-  // step that raises the mean |log area ratio|: past that point its minimum is not the
-  // measure's, and the steps only cost time (over the 88 meshes of the sweep, 67 s of
-  // refinement against 84 s, and diplodocus meets the tolerances; bench/RESULTS.md).
+  // ends once kPatience steps have gained less than 1 % on its best: on the spread starts of the
+  // real meshes (cow, armadillo, man) it creeps (cow 0.01494 to 0.01488 in 29 steps), on the
+  // coarse polyhedra it converges in a few (a cube in 2, corner in 11). Where the volume stage
+  // stops short on a coarse mesh, the chord stage from its result can stall where the one from
+  // the start does not (horizons-domain: 0.50 against 0.005; bench/RESULTS.md). Each volume
+  // stage ends once kPatience steps have not lowered the mean |log area ratio|: past that point
+  // its minimum is not the measure's, and the steps only cost time (over the 88 meshes of the
+  // sweep, 67 s of refinement against 84 s, and diplodocus meets the tolerances;
+  // bench/RESULTS.md). Either returns to its best map.
   const mesh::Vertices start = X;
   AreaRefinement out = refine(m, target, X, *plan, opt, sphere, 0.0);
   auto add = [&out](const AreaRefinement& r) {

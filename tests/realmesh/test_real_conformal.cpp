@@ -210,25 +210,36 @@ TEST(RealAreaPreserving, SphereAreaDistortionFallsFarBelowTheConformalMaps) {
       /*no_folds=*/true);
 }
 
-TEST(RealAreaPreserving, CamelsSpreadStartRefinesToTheStatedTolerances) {
+TEST(RealAreaPreserving, SpreadStartsRefineBelowTheBar) {
   // camel's conformal sphere map packs the legs' vertices 1e-5..1e-4 apart, so its transport
-  // starts from a spread map, whose centroid map is off by mean |log area ratio| 0.6 with
+  // starts from a spread map, whose centroid map is off by mean |log area ratio| 0.33 with
   // faces 50x too small or large. Nearly every Newton step of the refinement is then bounded
   // by a few faces about to turn over, at t ~ 0.1-0.3; the steps go to 0.9 of that bound
   // (detail::first_turn_on_sphere) and the default run meets both tolerances, bijective. With
-  // the bound found by halving alone it stopped at 0.0141 (session 55, bench/RESULTS.md).
-  mesh::CleanMesh cm = mesh::load_mesh((fs::path(BRENIER_TEST_DATA_DIR) / "camel.off").string());
-  ASSERT_TRUE(cm.valid());
-  const omt::AreaPreservingMap ap = omt::area_preserving_sphere(cm.mesh);
-  ASSERT_TRUE(ap.refinement.ran);
-  EXPECT_GT(ap.refinement.before.mean, 0.3);
-  EXPECT_TRUE(ap.refinement.converged) << ap.refinement.after.mean << " / " << ap.refinement.after.p95 << " after "
-                                       << ap.refinement.iterations << " steps";
-  EXPECT_LE(ap.refinement.after.mean, 0.01);
-  EXPECT_LE(ap.refinement.after.p95, 0.05);
-  const quality::MapQuality q = quality::measure(cm.mesh, ap.positions, quality::Target::kSphere);
-  EXPECT_EQ(q.flipped_faces, 0);
-  EXPECT_TRUE(quality::covers_once(q.degree));
+  // the bound found by halving alone it stopped at 0.0141. handle's refinement then stopped at
+  // the first step that raised its mean, 0.0215; its stages now wait three steps and keep their
+  // best map, and it meets issue 26's bar (mean <= 0.02, p95 <= 0.1; session 55, bench/RESULTS.md).
+  struct Want {
+    const char* name;
+    bool tolerances;  // the default tolerances (0.01 / 0.05), else the issue's bar
+  };
+  for (const Want& w : {Want{"camel.off", true}, Want{"handle.off", false}}) {
+    SCOPED_TRACE(w.name);
+    mesh::CleanMesh cm = mesh::load_mesh((fs::path(BRENIER_TEST_DATA_DIR) / w.name).string());
+    ASSERT_TRUE(cm.valid());
+    const omt::AreaPreservingMap ap = omt::area_preserving_sphere(cm.mesh);
+    ASSERT_TRUE(ap.refinement.ran);
+    EXPECT_GT(ap.refinement.before.mean, 0.3);
+    const double mean = w.tolerances ? 0.01 : 0.02, p95 = w.tolerances ? 0.05 : 0.1;
+    EXPECT_LE(ap.refinement.after.mean, mean) << ap.refinement.iterations << " steps";
+    EXPECT_LE(ap.refinement.after.p95, p95);
+    if (w.tolerances) {
+      EXPECT_TRUE(ap.refinement.converged);
+    }
+    const quality::MapQuality q = quality::measure(cm.mesh, ap.positions, quality::Target::kSphere);
+    EXPECT_EQ(q.flipped_faces, 0);
+    EXPECT_TRUE(quality::covers_once(q.degree));
+  }
 }
 
 TEST(RealRegister, BearOntoARemeshedBentCopyByBothRoutesOfTheSphere) {

@@ -141,7 +141,11 @@ TEST(AreaRefinement, ACubeSlidTowardAPoleComesBackToEqualAreas) {
   // normalized). The inscribed cube meets the targets exactly. The volume measure's minimum is
   // elsewhere (its planes' distances change with the shape: its result came out worse than the
   // start, which was kept, mean 0.24 after 100 steps); the chord stage after it
-  // (area_refinement.cpp) reaches equal areas.
+  // (area_refinement.cpp) reaches equal areas, to within what its energy's own minimum allows:
+  // both of its theta stages end at mean |log area ratio| ~4e-4 here, with the Newton
+  // decrement below 1e-7 of the energy. The tolerance was 1e-4 until session 55, met only where
+  // the steps happened to pass below it on the way (the stages now go on to their minimum
+  // unless the tolerance stops them, and return their best map: 2e-4).
   mesh::TriMesh m = make_cube(false);
   m.V /= std::sqrt(3.0);
   const quality::MapQuality cube = quality::measure(m, m.V, quality::Target::kSphere);
@@ -149,7 +153,7 @@ TEST(AreaRefinement, ACubeSlidTowardAPoleComesBackToEqualAreas) {
   mesh::Vertices X = m.V;
   for (int v = 0; v < 8; ++v) X.row(v) = (X.row(v) + Eigen::RowVector3d(0.1, 0, 0.3)).normalized();
   omt::AreaRefineOptions o;
-  o.mean_tolerance = 1e-4;
+  o.mean_tolerance = 1e-3;
   o.p95_tolerance = 1e-3;
   const omt::AreaRefinement r = omt::refine_sphere_areas(m, mesh::face_areas(m), X, o);
   EXPECT_GT(r.before.mean, 0.1);
