@@ -544,12 +544,6 @@ void check_targets(const mesh::TriMesh& m, const Eigen::VectorXd& target, const 
     BRENIER_CHECK(target[f] > 0 && std::isfinite(target[f]), "face " << f << " has target area " << target[f]);
 }
 
-// The staged minimization of area_refinement.hpp: theta = 0.999, then 0.9999, each stage
-// ended when the Newton decrement falls below 1e-7 of the energy or after 50 steps, the
-// whole when the tolerances hold or the budget is spent; the unknowns and the analysed
-// pattern are plan's. Given min_progress (the sphere), a stage also ends once kPatience steps
-// in a row have not cut the mean |log area ratio| by that fraction from where it last did (0:
-// have not lowered it), and the map goes back to the stage's best.
 // The sphere stages' patience (refine's min_progress). Until session 55 a stage ended at the
 // first step short of the progress, and kept that step's map: with the steps cut at the first
 // face turning over (FaceNewton::max_step) the mean |log area ratio| no longer falls at every
@@ -557,6 +551,12 @@ void check_targets(const mesh::TriMesh& m, const Eigen::VectorXd& target, const 
 // three steps of patience reach 0.0104 and 0.0229 (bench/RESULTS.md).
 constexpr int kPatience = 3;
 
+// The staged minimization of area_refinement.hpp: theta = 0.999, then 0.9999, each stage
+// ended when the Newton decrement falls below 1e-7 of the energy or after 50 steps, the
+// whole when the tolerances hold or the budget is spent; the unknowns and the analysed
+// pattern are plan's. Given min_progress (the sphere), a stage also ends once kPatience steps
+// in a row have not cut the mean |log area ratio| by that fraction from where it last did (0:
+// have not lowered it), and the map goes back to the stage's best.
 template <class Geometry>
 AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
                       RefinementPlan& plan, const AreaRefineOptions& opt, Geometry& geometry,
@@ -698,7 +698,7 @@ AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd
   // The volume measure first (a barrier against turning, from any start), then, where the
   // tolerances are not met, the chord measure (see SphereGeometry): from the volume stage's
   // result, and if that is still short, from the start too, the better kept. Each chord stage
-  // ends once kPatience steps have gained less than 1 % on its best: on the spread starts of the
+  // ends once kPatience steps in a row have gained less than 1 %: on the spread starts of the
   // real meshes (cow, armadillo, man) it creeps (cow 0.01494 to 0.01488 in 29 steps), on the
   // coarse polyhedra it converges in a few (a cube in 2, corner in 11). Where the volume stage
   // stops short on a coarse mesh, the chord stage from its result can stall where the one from

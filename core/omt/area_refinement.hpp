@@ -22,8 +22,9 @@
 // The disk's boundary vertices slide along the circle (a face with three corners there could
 // not change its area if they were held). Stops when the stated tolerances hold (mean and
 // 95th percentile of |log area ratio|) or after the step budget, saying which; on the sphere
-// a volume stage also ends at a step that raises the mean |log area ratio|, a chord stage at
-// one that gains less than 1 %. A result worse than its start is not kept.
+// a volume stage also ends after three steps in a row that do not lower the mean |log area
+// ratio|, a chord stage after three that gain less than 1 %, each returning its best map. A
+// result worse than its start is not kept.
 #pragma once
 
 #include <Eigen/Core>
