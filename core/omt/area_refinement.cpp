@@ -7,7 +7,6 @@
 #include <limits>
 #include <memory>
 #include <optional>
-#include <type_traits>
 
 #include "common/check.hpp"
 #include "common/parallel.hpp"
@@ -207,6 +206,11 @@ struct PlaneGeometry {
       if (r > 0) root = std::min(root, r);
     return root;
   }
+  // FaceNewton::max_step's bound for face f, its corners moved by s0, s1, s2 (times t).
+  double first_turn(const mesh::Vertices& X, const detail::BarrierFace& f, const Eigen::Vector2d& s0,
+                    const Eigen::Vector2d& s1, const Eigen::Vector2d& s2) const {
+    return first_root(edges(X, f), s1 - s0, s2 - s0);
+  }
 };
 
 // The sphere: corners on the unit sphere, a vertex moved by delta in its tangent plane goes to
@@ -370,6 +374,14 @@ struct SphereGeometry {
   void move(mesh::Vertices& Y, int row, const Eigen::Vector2d& step) const {
     Y.row(row) = (at(*X0, row) + basis[row] * step).normalized().transpose();
   }
+  // FaceNewton::max_step's bound for face f, its corners moved by s0, s1, s2 (times t) in their
+  // tangent planes: detail::first_turn_on_sphere, looked for up to t = 2 (the step is cut to 0.9
+  // of the root, so a root past 1 / 0.9 leaves the full step).
+  double first_turn(const mesh::Vertices& X, const detail::BarrierFace& f, const Eigen::Vector2d& s0,
+                    const Eigen::Vector2d& s1, const Eigen::Vector2d& s2) const {
+    return detail::first_turn_on_sphere(at(X, f.v[0]), at(X, f.v[1]), at(X, f.v[2]), basis[f.v[0]] * s0,
+                                        basis[f.v[1]] * s1, basis[f.v[2]] * s2, 2.0);
+  }
   // A map with every face outward can still wrap around the sphere: it must cover it once.
   const mesh::Faces* F = nullptr;
   bool valid(const mesh::Vertices& Y) const { return quality::covers_once(quality::sphere_degree(*F, Y)); }
@@ -489,33 +501,17 @@ class FaceNewton {
     return Eigen::Vector2d::Zero();
   }
 
+  // The least over the faces of the geometry's first t at which the face degenerates or turns
+  // over along the step (the min is exact in any order, so the threads do not change it).
   double max_step(const mesh::Vertices& X, const Eigen::VectorXd& d) const {
-    if constexpr (!std::is_same_v<Geometry, PlaneGeometry>) {
-      // Each corner's step in 3-D, in its tangent plane at the step's start (limit 2: the step
-      // is cut to 0.9 of the root, and a root past 1 / 0.9 leaves the full step).
-      auto dv = [&](int r) -> Eigen::Vector3d { return geometry_.basis[r] * step_of(r, d); };
-      double best = std::numeric_limits<double>::infinity();
-      const long nf = static_cast<long>(faces_.size());
+    double best = std::numeric_limits<double>::infinity();
+    const long nf = static_cast<long>(faces_.size());
 #pragma omp parallel for reduction(min : best) schedule(static)
-      for (long k = 0; k < nf; ++k) {
-        const detail::BarrierFace& f = faces_[k];
-        best = std::min(best, detail::first_turn_on_sphere(Geometry::at(X, f.v[0]), Geometry::at(X, f.v[1]),
-                                                           Geometry::at(X, f.v[2]), dv(f.v[0]), dv(f.v[1]),
-                                                           dv(f.v[2]), 2.0));
-      }
-      return best;
-    } else {
-      auto dv = [&](int r) { return step_of(r, d); };
-      double best = std::numeric_limits<double>::infinity();
-      const long nf = static_cast<long>(faces_.size());
-#pragma omp parallel for reduction(min : best) schedule(static)
-      for (long k = 0; k < nf; ++k) {
-        const detail::BarrierFace& f = faces_[k];
-        const Eigen::Vector2d da = dv(f.v[0]);
-        best = std::min(best, PlaneGeometry::first_root(PlaneGeometry::edges(X, f), dv(f.v[1]) - da, dv(f.v[2]) - da));
-      }
-      return best;
+    for (long k = 0; k < nf; ++k) {
+      const detail::BarrierFace& f = faces_[k];
+      best = std::min(best, geometry_.first_turn(X, f, step_of(f.v[0], d), step_of(f.v[1], d), step_of(f.v[2], d)));
     }
+    return best;
   }
 
   const std::vector<detail::BarrierFace>& faces_;
