@@ -7,6 +7,7 @@
 #include <limits>
 #include <memory>
 #include <optional>
+#include <span>
 
 #include "common/check.hpp"
 #include "common/parallel.hpp"
@@ -547,7 +548,22 @@ void check_targets(const mesh::TriMesh& m, const Eigen::VectorXd& target, const 
 // three steps of patience reach 0.0104 and 0.0229 (bench/RESULTS.md).
 constexpr int kPatience = 3;
 
-// The staged minimization of area_refinement.hpp: theta = 0.999, then 0.9999, each stage
+// The stages' thetas. The disk's, and the sphere's from a start near its areas: 0.999, then
+// 0.9999.
+constexpr std::array<double, 2> kThetas = {0.999, 0.9999};
+// The sphere's from a start far from its areas (mean |log area ratio| above kFarStart: the
+// spread starts of crowded conformal maps and coarse polyhedra, 0.26-0.81 on data/meshes), a
+// continuation from a stiffer shape term. A spread start's arms and legs must stretch across the sphere; begun at
+// 0.999 the stages stalled where a few thin faces held their neighbours (bull 0.0417, dino
+// 0.0229, spool 0.0227, part 0.0456). Begun at 0.98, the early stages move the map as a whole
+// while the shapes still resist, and the later ones meet the areas from there: bull 0.0382,
+// dino 0.0168, spool 0.0115, part 0.0165 (bench/RESULTS.md, session 56). Starting lower (0.95,
+// 0.5) or with more stages was no better. Near starts (bunny00 0.17, bear 0.06) meet the
+// tolerances either way, in fewer steps without the stiff stages (bunny00 9 against 50).
+constexpr std::array<double, 5> kFarThetas = {0.98, 0.995, 0.999, 0.9999, 0.99999};
+constexpr double kFarStart = 0.25;
+
+// The staged minimization of area_refinement.hpp, one stage per theta of `thetas`, each stage
 // ended when the Newton decrement falls below 1e-7 of the energy or after 50 steps, the
 // whole when the tolerances hold or the budget is spent; the unknowns and the analysed
 // pattern are plan's. Given min_progress (the sphere), a stage also ends once kPatience steps
@@ -556,7 +572,7 @@ constexpr int kPatience = 3;
 template <class Geometry>
 AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
                       RefinementPlan& plan, const AreaRefineOptions& opt, Geometry& geometry,
-                      std::optional<double> min_progress = std::nullopt) {
+                      std::span<const double> thetas, std::optional<double> min_progress = std::nullopt) {
   const auto t0 = std::chrono::steady_clock::now();
   AreaRefinement out;
   out.ran = true;
@@ -600,7 +616,7 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
   set_references();
   const int n = plan.n;
   FaceNewton<Geometry> newton(faces, plan, geometry);
-  for (double theta : {0.999, 0.9999}) {
+  for (double theta : thetas) {
     if (out.converged || out.iterations >= opt.max_iterations || n == 0) break;
     ++out.stages;
     // Sphere stages (min_progress given): the map of the stage's least mean |log area ratio|,
@@ -679,7 +695,7 @@ AreaRefinement refine_disk_areas(const mesh::TriMesh& m, const Eigen::VectorXd& 
   if (!every_face(m, [&](int f) { return PlaneGeometry::chord_area(X, m.F, f) > 0; })) return {};
   plan = plan_for(m, disk_unknowns(fixed, opt), std::move(plan));
   PlaneGeometry plane;
-  return refine(m, target, X, *plan, opt, plane);
+  return refine(m, target, X, *plan, opt, plane, kThetas);
 }
 
 AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
@@ -704,7 +720,9 @@ AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd
   // sweep, 67 s of refinement against 84 s, and diplodocus meets the tolerances;
   // bench/RESULTS.md). Either returns to its best map.
   const mesh::Vertices start = X;
-  AreaRefinement out = refine(m, target, X, *plan, opt, sphere, 0.0);
+  const bool far = abs_log_stats(m.F, X, target).mean > kFarStart;
+  const std::span<const double> thetas = far ? std::span<const double>(kFarThetas) : std::span<const double>(kThetas);
+  AreaRefinement out = refine(m, target, X, *plan, opt, sphere, thetas, 0.0);
   auto add = [&out](const AreaRefinement& r) {
     out.iterations += r.iterations;
     out.stages += r.stages;
@@ -714,7 +732,7 @@ AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd
   for (int from_start = 0; from_start < 2 && !out.converged; ++from_start) {
     if (from_start && out.kept_start) break;  // the first chord run already started there
     mesh::Vertices Y = from_start ? start : X;
-    const AreaRefinement chord = refine(m, target, Y, *plan, opt, sphere, 0.01);
+    const AreaRefinement chord = refine(m, target, Y, *plan, opt, sphere, thetas, 0.01);
     add(chord);
     if (!chord.kept_start && chord.after.mean < out.after.mean) {
       X = std::move(Y);
