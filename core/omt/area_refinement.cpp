@@ -553,13 +553,14 @@ constexpr int kPatience = 3;
 constexpr std::array<double, 2> kThetas = {0.999, 0.9999};
 // The sphere's from a start far from its areas (mean |log area ratio| above kFarStart: the
 // spread starts of crowded conformal maps and coarse polyhedra, 0.26-0.81 on data/meshes), a
-// continuation from a stiffer shape term. A spread start's arms and legs must stretch across the sphere; begun at
-// 0.999 the stages stalled where a few thin faces held their neighbours (bull 0.0417, dino
-// 0.0229, spool 0.0227, part 0.0456). Begun at 0.98, the early stages move the map as a whole
-// while the shapes still resist, and the later ones meet the areas from there: bull 0.0382,
-// dino 0.0168, spool 0.0115, part 0.0165 (bench/RESULTS.md, session 56). Starting lower (0.95,
-// 0.5) or with more stages was no better. Near starts (bunny00 0.17, bear 0.06) meet the
-// tolerances either way, in fewer steps without the stiff stages (bunny00 9 against 50).
+// continuation from a stiffer shape term. A spread start's arms and legs must stretch across
+// the sphere; begun at 0.999 the stages stalled where a few thin faces held their neighbours
+// (bull 0.0417, dino 0.0229, spool 0.0227, part 0.0456). Begun at 0.98, the early stages move
+// the map as a whole while the shapes still resist, and the later ones meet the areas from
+// there: bull 0.0382, dino 0.0168, spool 0.0115, part 0.0165 (bench/RESULTS.md, session 56).
+// Starting lower (0.95, 0.5) or with more stages was no better. Near starts (bunny00 0.17,
+// bear 0.06) meet the tolerances either way, in fewer steps without the stiff stages (bunny00
+// 9 against 50). On the disk the five stages were worse (mannequin-devil off its tolerances).
 constexpr std::array<double, 5> kFarThetas = {0.98, 0.995, 0.999, 0.9999, 0.99999};
 constexpr double kFarStart = 0.25;
 

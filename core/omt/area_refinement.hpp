@@ -14,9 +14,9 @@
 // D_f = 1, the face's own area; the second, the MIPS energy, is scale-free and keeps the
 // shapes, which makes the minimizer unique and keeps the triangles from turning into slivers;
 // theta rises stage by stage and lets the area term win: 0.999, then 0.9999; on the sphere,
-// from a start far from its areas (mean |log area ratio| above 0.25, the spread starts),
-// 0.98, 0.995, 0.999, 0.9999, 0.99999, a continuation whose stiffer first stages move the
-// arms as a whole (area_refinement.cpp). The minimization is a projected Newton
+// from a start far from its areas (mean |log area ratio| above 0.25: spread starts, coarse
+// polyhedra), 0.98, 0.995, 0.999, 0.9999, 0.99999, a continuation whose stiffer first stages
+// move the arms as a whole (area_refinement.cpp). The minimization is a projected Newton
 // method (each face's Hessian with its negative eigenvalues clamped, CHOLMOD for the system),
 // the step cut before any face degenerates (in closed form on the plane and on the sphere) and
 // by Armijo's rule; the energy is infinite on a degenerate face, so from a map with no flipped

@@ -219,8 +219,9 @@ TEST(RealAreaPreserving, SpreadStartsRefineBelowTheBar) {
   // the bound found by halving alone it stopped at 0.0141. handle's refinement then stopped at
   // the first step that raised its mean, 0.0215; its stages now wait three steps and keep their
   // best map, and it meets issue 26's bar (mean <= 0.02, p95 <= 0.1; session 55, bench/RESULTS.md).
-  // part's and spool's arms stalled the stages begun at theta = 0.999 (0.0456 and 0.0227); the
-  // sphere's stages now begin at 0.98 and reach the bar (0.0165 and 0.0115; session 56).
+  // part's and spool's arms stalled the stages begun at theta = 0.999 (0.0456 and 0.0227); from
+  // starts as far from their areas as these (0.45, 0.48) the sphere's stages now begin at 0.98
+  // and reach the bar (0.0165 and 0.0115; session 56).
   struct Want {
     const char* name;
     bool tolerances;  // the default tolerances (0.01 / 0.05), else the issue's bar
