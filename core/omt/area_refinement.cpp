@@ -721,8 +721,8 @@ AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd
   // sweep, 67 s of refinement against 84 s, and diplodocus meets the tolerances;
   // bench/RESULTS.md). Either returns to its best map.
   const mesh::Vertices start = X;
-  const bool far = abs_log_stats(m.F, X, target).mean > kFarStart;
-  const std::span<const double> thetas = far ? std::span<const double>(kFarThetas) : std::span<const double>(kThetas);
+  std::span<const double> thetas = kThetas;
+  if (abs_log_stats(m.F, X, target).mean > kFarStart) thetas = kFarThetas;
   AreaRefinement out = refine(m, target, X, *plan, opt, sphere, thetas, 0.0);
   auto add = [&out](const AreaRefinement& r) {
     out.iterations += r.iterations;
