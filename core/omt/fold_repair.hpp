@@ -10,7 +10,9 @@
 // which for eps -> 0 is infinite on folded faces and least at det J = 1 (area kept) with J
 // a rotation (shape kept). eps starts large enough that a folded start has finite energy
 // and shrinks with the smallest det J, so the minimizer leaves the folds; once every face
-// turns the right way the energy is a barrier and no fold comes back.
+// turns the right way the energy is a barrier and no fold comes back. A region whose deepest
+// fold has stopped rising while eps is already small against it is given up before the
+// schedule's end (fold_repair.cpp, stalled()), and the next, larger region is tried.
 #pragma once
 
 #include <functional>
