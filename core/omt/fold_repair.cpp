@@ -130,26 +130,6 @@ struct PlaneBarrier {
   }
 };
 
-// Whether a barrier untangling has stalled, from its deepest fold's det J after each round
-// so far (`deepest`) and the barrier's current eps. The schedule (Garanzha et al.'s eps
-// update, below) runs up to 60 rounds of 400 L-BFGS iterations; a region it cannot untangle
-// runs them all, and on the spread starts of crowded sphere maps such regions took most of
-// the map's time (man 283 of 332 s, dino 24 of 34 s). Traced over twelve sphere meshes, the
-// deepest det J of a region that fails stops rising. One that succeeds either rises steadily
-// toward zero, a few percent a round, or sits at a plateau and escapes, with eps still above
-// a sixth of |det J| (11 of the 12 successes that had a plateau; the twelfth, one of man's
-// 1,341 runs, is given up here). So a run stops when, after at least kMinRounds rounds, its
-// deepest det J is negative, rose by less than kRise of its magnitude over the last kWindow
-// rounds, and eps is below kSharp |det J|. The caller then tries the next, larger region.
-bool stalled(const std::vector<double>& deepest, double eps) {
-  constexpr int kMinRounds = 10, kWindow = 5;
-  constexpr double kRise = 0.05, kSharp = 0.1;
-  const int r = static_cast<int>(deepest.size()) - 1;
-  if (r < kMinRounds) return false;
-  const double now = deepest[r], then = deepest[r - kWindow];
-  return now < 0 && now - then < kRise * std::abs(then) && eps < kSharp * std::abs(now);
-}
-
 // Moves the rows of X with free[row] != 0 to minimize the energy over `faces` (on the unit
 // sphere with SphereBarrier, in a plane with PlaneBarrier); theta weighs the area term.
 // Returns the number of `faces` still folded (0 on success).
@@ -191,7 +171,7 @@ int untangle_by_barrier(const std::vector<BarrierFace>& faces, mesh::Vertices& X
     const double E = energy(y, grad);
     if (energy.min_det > 0 && outer > 0 && energy.eps < 1e-9) break;
     deepest.push_back(energy.min_det);
-    if (stalled(deepest, energy.eps)) break;
+    if (detail::untangling_stalled(deepest, energy.eps)) break;
     const double sigma = std::max(1 - E / E_prev, 0.1);
     const double s = std::sqrt(energy.eps * energy.eps + energy.min_det * energy.min_det);
     const double mu = (1 - sigma) * 0.5 * (energy.min_det + s);

@@ -12,7 +12,8 @@
 // and shrinks with the smallest det J, so the minimizer leaves the folds; once every face
 // turns the right way the energy is a barrier and no fold comes back. A region whose deepest
 // fold has stopped rising while eps is already small against it is given up before the
-// schedule's end (fold_repair.cpp, stalled()), and the next, larger region is tried.
+// schedule's end (barrier_energy.hpp, untangling_stalled), and the next, larger region is
+// tried.
 #pragma once
 
 #include <functional>

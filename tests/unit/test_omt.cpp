@@ -13,6 +13,7 @@
 #include "mesh/geometry.hpp"
 #include "mesh/shapes.hpp"
 #include "omt/area_preserving.hpp"
+#include "omt/barrier_energy.hpp"
 #include "omt/stall.hpp"
 #include "omt/fold_repair.hpp"
 #include "omt/omt.hpp"
@@ -896,6 +897,50 @@ TEST(FoldRepair, UnfoldsAPushedVertexOnTheSphereLocallyAndKeepsAreas) {
       EXPECT_EQ(e.code(), ErrorCode::kCancelled);
     }
   }
+}
+
+// The test that gives up a barrier untangling (barrier_energy.hpp, untangling_stalled), on
+// three runs traced from data/meshes' sphere maps (deepest det J and eps after each round):
+// dino's region of 74 free vertices, whose deepest fold rose steadily and untangled at round
+// 51; bull's of 637, which sat at a plateau near -0.034 with eps about twice that, then
+// untangled at round 18; and dino's region of 400, which stayed folded through all 60 rounds.
+// The first two must run on, the third is given up once its plateau is sharp against eps.
+TEST(FoldRepair, AnUntanglingIsGivenUpOnlyWhereItsDeepestFoldStopsRising) {
+  auto first_stall = [](const std::vector<double>& det, const std::vector<double>& eps) {
+    std::vector<double> deepest;
+    for (size_t r = 0; r < det.size(); ++r) {
+      deepest.push_back(det[r]);
+      if (omt::detail::untangling_stalled(deepest, eps[r])) return static_cast<int>(r);
+    }
+    return -1;
+  };
+  const std::vector<double> rising_det = {-0.147,  -0.138, -0.134,  -0.13,   -0.126,  -0.121, -0.117,
+                                          -0.113,  -0.108, -0.104,  -0.0997, -0.0954, -0.0911, -0.0869,
+                                          -0.0828, -0.0789, -0.075, -0.0714, -0.0679, -0.0646, -0.0615,
+                                          -0.0586, -0.0558, -0.053, -0.0502};
+  const std::vector<double> rising_eps = {0.26,  0.22,  0.21,  0.19,  0.18,  0.17,  0.16,  0.15,  0.14,
+                                          0.13,  0.12,  0.11,  0.11,  0.1,   0.095, 0.089, 0.084, 0.079,
+                                          0.074, 0.069, 0.065, 0.061, 0.058, 0.054, 0.051};
+  EXPECT_EQ(first_stall(rising_det, rising_eps), -1);
+  const std::vector<double> plateau_det = {-1.9,    -0.0967, -0.0685, -0.0639, -0.0592, -0.0551,
+                                           -0.0512, -0.0479, -0.0447, -0.0419, -0.0395, -0.0373,
+                                           -0.0355, -0.0341, -0.0332, -0.033,  -0.0347, -0.0407};
+  const std::vector<double> plateau_eps = {5.7,  0.33, 0.24, 0.22, 0.21,  0.19,  0.17,  0.16,  0.15,
+                                           0.14, 0.13, 0.12, 0.11, 0.099, 0.092, 0.085, 0.078, 0.073};
+  EXPECT_EQ(first_stall(plateau_det, plateau_eps), -1);
+  const std::vector<double> stuck_det = {-1.77, -0.78, -0.813, -0.8,   -0.802, -0.806, -0.803,
+                                         -0.509, -0.536, -0.568, -0.564, -0.567, -0.56,  -0.501,
+                                         -0.497, -0.497, -0.493};
+  const std::vector<double> stuck_eps = {9.0,   0.13,  0.09,  0.081, 0.077, 0.073, 0.069, 0.065, 0.062,
+                                         0.059, 0.056, 0.053, 0.05,  0.048, 0.045, 0.043, 0.041};
+  // Round 12: -0.56 against -0.509 five rounds before (no rise), and eps 0.05 < 0.056.
+  EXPECT_EQ(first_stall(stuck_det, stuck_eps), 12);
+  // The same plateau with eps still large against it runs on, and an unfolded run (det J > 0)
+  // is never given up.
+  std::vector<double> loose_eps(stuck_eps.size(), 0.2);
+  EXPECT_EQ(first_stall(stuck_det, loose_eps), -1);
+  std::vector<double> unfolded(stuck_det.size(), 0.01);
+  EXPECT_EQ(first_stall(unfolded, stuck_eps), -1);
 }
 
 // The solver iterates on the offsets psi = h + |y|^2 / 2 (half the power weights), not on
