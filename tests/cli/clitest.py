@@ -37,20 +37,20 @@ def write_lines(directory, name, lines):
 
 
 def read_off(path):
-    toks = [l.split("#")[0] for l in open(path)]
-    toks = " ".join(toks).split()
-    assert toks[0] == "OFF"
-    nv, nf = int(toks[1]), int(toks[2])
-    i = 4
-    verts = []
-    for _ in range(nv):
-        verts.append(tuple(float(x) for x in toks[i:i + 3]))
-        i += 3
+    """Vertices and faces of an OFF file, also COFF/NOFF-style ones whose vertex and face lines
+    carry colours or normals after the coordinates (data/meshes' dino.off): each vertex is its
+    line's first three numbers, each face its count and that many indices."""
+    lines = [l.split("#")[0].split() for l in open(path)]
+    lines = [l for l in lines if l]
+    head = lines[0]
+    assert head[0].endswith("OFF"), f"{path}: not an OFF file"
+    counts, body = (head[1:], lines[1:]) if len(head) > 1 else (lines[1], lines[2:])
+    nv, nf = int(counts[0]), int(counts[1])
+    verts = [tuple(float(x) for x in l[:3]) for l in body[:nv]]
     faces = []
-    for _ in range(nf):
-        k = int(toks[i])
-        faces.append(tuple(int(x) for x in toks[i + 1:i + 1 + k]))
-        i += 1 + k
+    for l in body[nv:nv + nf]:
+        k = int(l[0])
+        faces.append(tuple(int(x) for x in l[1:1 + k]))
     return verts, faces
 
 
