@@ -14,21 +14,13 @@ import os
 import random
 import resource
 import subprocess
+import sys
 import time
 
 import numpy as np
 
-
-def read_off(path):
-    t = open(path).read().split()
-    nv, nf = int(t[1]), int(t[2])
-    V = np.array(t[4:4 + 3 * nv], dtype=float).reshape(nv, 3)
-    F, o = [], 4 + 3 * nv
-    for _ in range(nf):
-        n = int(t[o])
-        F.append(tuple(int(x) for x in t[o + 1:o + 1 + n]))
-        o += n + 1
-    return V, F
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests", "cli"))
+from clitest import read_off  # noqa: E402
 
 
 def subdivide(V, F):
@@ -68,6 +60,7 @@ def main():
     a = ap.parse_args()
     os.makedirs(a.work, exist_ok=True)
     V, F = read_off(a.mesh)
+    V = np.array(V)
     for _ in range(a.subdivide):
         V, F = subdivide(V, F)
     mesh = os.path.join(a.work, "mesh.off")
