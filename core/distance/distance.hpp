@@ -35,6 +35,9 @@ struct PairResult {
   /// density cap its transport needed to converge (0: the shape's own sufficed) and how far
   /// that moved the source measure in W2, on top of Shape::density_shift.
   std::array<double, 2> lowered_cap{}, lowered_shift{};
+  /// Sphere: 0 or 1 where `distance` is that direction alone (0: forward, the first shape's
+  /// density as the source), the other not solved (NaN); -1: the mean of both.
+  int source = -1;
   /// Wasserstein with WassersteinOptions::exact_rotation: every turn (disk) or frame
   /// half-turn (sphere) compared by the exact cost, the chosen one first.
   struct Candidate {
@@ -126,16 +129,22 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, c
 /// principal frame), to dst's cell tolerance; the cost is the Kantorovich dual. Where that
 /// transport does not converge (src a different shape from dst), it is solved again with
 /// src's density held to a tenth, then a hundredth, of its peak (cap_density), and the
-/// result says which cap and bound it took (TransportCost::density_cap).
+/// result says which cap and bound it took (TransportCost::density_cap). `caps` limits that:
+/// the shape's own density only (no retry), or the lowered caps only (the own one was tried).
+enum class SphereCaps { kOwnThenLowered, kOwnOnly, kLoweredOnly };
 TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
-                                    const omt::Progress& progress, Eigen::VectorXd& h, const Abandon& abandon = {});
+                                    const omt::Progress& progress, Eigen::VectorXd& h, const Abandon& abandon = {},
+                                    SphereCaps caps = SphereCaps::kOwnThenLowered);
 
 /// The conformal Wasserstein distance (Alg. 5, eq. 3.31): the source is the first shape's
 /// pushed-forward area density (piecewise constant on its conformal image), the sites the
 /// second's conformal vertex images with their masses; semi-discrete OMT (Alg. 2) and
 ///   W2^2 = sum_i int_{W_i} |x - p_i|^2 mu(x) dx.
 /// Computed both ways (the discretization makes them differ slightly); `distance` is the
-/// mean of the two W2. Without markers, the second shape is turned by the rotation found by
+/// mean of the two W2. On the sphere, where one shape's density was capped on more mass
+/// than the other's (Shape::capped_mass), the distance is the direction from the other,
+/// less crowded, density alone, when that converges at the shapes' own caps
+/// (PairResult::source); otherwise both, as above. Without markers, the second shape is turned by the rotation found by
 /// omt_linear (then refined, see the options). A transport that does not converge makes
 /// converged false with its error, never a silent value.
 PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions& options = {});

@@ -81,6 +81,9 @@ nlohmann::json pair_json(const distance::PairResult& r, distance::Method method)
     j["backward"] = r.backward;
     j["raw_forward"] = r.raw_forward;
     j["raw_backward"] = r.raw_backward;
+    // Sphere pairs with one crowded density: the one direction solved (PairResult::source).
+    j["directions"] = r.source < 0 ? nlohmann::json{"forward", "backward"}
+                                   : nlohmann::json{r.source == 0 ? "forward" : "backward"};
     j["newton_iterations"] = r.newton_iterations;
     j["max_relative_area_error"] = r.max_relative_error;
     j["max_relative_cost_gap"] = r.max_relative_cost_gap;

@@ -339,7 +339,9 @@ for level in range(2):
     pots = [math.sqrt(4 * math.pi * ot.emd2(masses[0], masses[1], ot.dist(images[0], images[1] * np.array(g)),
                                              numItermax=10 ** 7))
             for g in [(1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)]]
-    raw = 0.5 * (j["raw_forward"] + j["raw_backward"])
+    # eq. 3.31 of the directions solved (one, where one shape's density is the more crowded).
+    solved = [x for x in (j["raw_forward"], j["raw_backward"]) if x is not None]
+    raw = sum(solved) / len(solved)
     pot = min(pots, key=lambda x: abs(x - raw))
     sphere_raw_gaps.append(abs(raw - pot) / pot)
     sphere_gaps.append(abs(j["distance"] - pot) / pot)

@@ -616,3 +616,60 @@ TEST(Distance, ASurfaceTransportThatCreepsStopsAsStalledAfterItsWindow) {
   EXPECT_FALSE(easy.stalled);
   EXPECT_LE(easy.max_relative_error, 1e-8);
 }
+
+namespace {
+
+// A sphere shape with both parts of the exact distance: `density`'s source density, n random
+// sites of equal mass, and `capped` as the capped mass its preparation reports
+// (Shape::capped_mass); a one-point-per-band quadrature of equal samples (every frame alike).
+Shape sphere_shape(const Shape& density, int n, unsigned seed, double capped, const std::string& name) {
+  Shape s = random_sites(n, seed);
+  s.name = name;
+  s.surface = density.surface;
+  s.capped_mass = capped;
+  s.rings = 2;
+  s.angles = 2;
+  s.sphere_samples.setZero(4, 3);
+  s.sphere_samples.col(2).setOnes();
+  return s;
+}
+
+}  // namespace
+
+// Issue 23: the sphere pair with one crowded density (dino x bear) is the transport from the
+// other density alone, which converges at the shapes' own caps, where the crowded one
+// stalls. Its value is that transport's, the other direction not solved; the order of the
+// pair does not change it. Where the less crowded density stalls too, both directions are
+// solved at the lowered caps, as before.
+TEST(Distance, ASpherePairWithOneCrowdedDensityIsTheTransportFromTheOther) {
+  const Shape peak = peaked_source(3, 0.1, 1e4), flat = peaked_source(3, 0.1, 1);
+  const Shape crowded = sphere_shape(peak, 1000, 7, 0.3, "crowded"), plain = sphere_shape(flat, 1200, 8, 0, "plain");
+  const distance::PairResult ab = distance::wasserstein(crowded, plain), ba = distance::wasserstein(plain, crowded);
+  ASSERT_TRUE(ab.converged);
+  ASSERT_TRUE(ba.converged);
+  EXPECT_EQ(ab.source, 1);
+  EXPECT_EQ(ba.source, 0);
+  EXPECT_TRUE(std::isnan(ab.forward));
+  EXPECT_EQ(ab.distance, ab.backward);
+  EXPECT_EQ(ab.distance, ba.distance);
+  EXPECT_EQ(ab.lowered_cap[0] + ab.lowered_cap[1], 0);
+  EXPECT_NE(ab.normalization.find("one direction: plain's density onto crowded's sites"), std::string::npos)
+      << ab.normalization;
+  Eigen::VectorXd h;
+  const distance::TransportCost direct = distance::transport_cost_sphere(plain, crowded, Eigen::Vector3d::Ones(), {}, h);
+  ASSERT_TRUE(direct.converged);
+  EXPECT_EQ(direct.density_cap, 0);
+  EXPECT_DOUBLE_EQ(ab.distance, std::sqrt(direct.w2_squared));
+
+  // Both crowded: the less crowded one's transport stalls, and both directions go to the
+  // lowered cap.
+  const Shape other = sphere_shape(peak, 1200, 8, 0.2, "other");
+  const distance::PairResult both = distance::wasserstein(crowded, other);
+  ASSERT_TRUE(both.converged);
+  EXPECT_EQ(both.source, -1);
+  for (const double cap : both.lowered_cap) {  // a tenth or a hundredth of the peak
+    EXPECT_GT(cap, 0);
+    EXPECT_LE(cap, 1e3);
+  }
+  EXPECT_DOUBLE_EQ(both.distance, 0.5 * (both.forward + both.backward));
+}

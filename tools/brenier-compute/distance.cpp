@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -86,9 +87,15 @@ int run_distance(const DistanceOptions& o) {
   } else {
     std::printf("%s %s %s: %.10g\n", distance::method_name(request.shape.method), d.a.name.c_str(), d.b.name.c_str(),
                 r.distance);
-    if (o.both && request.shape.method == distance::Method::kWasserstein)
-      std::printf("forward (source %s) %.10g, backward (source %s) %.10g\n", d.a.name.c_str(), r.forward,
-                  d.b.name.c_str(), r.backward);
+    if (o.both && request.shape.method == distance::Method::kWasserstein) {
+      auto value = [](double x) {
+        char text[32];
+        std::snprintf(text, sizeof text, "%.10g", x);
+        return std::isfinite(x) ? std::string(text) : std::string("not solved");
+      };
+      std::printf("forward (source %s) %s, backward (source %s) %s\n", d.a.name.c_str(), value(r.forward).c_str(),
+                  d.b.name.c_str(), value(r.backward).c_str());
+    }
     std::printf("normalization: %s; rotation %.6f rad; %.3f s\n", r.normalization.c_str(), r.rotation,
                 seconds_since(t0));
   }
