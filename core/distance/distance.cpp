@@ -144,7 +144,7 @@ TransportCost transport_to(const Shape& dst, const omt::Progress& progress, cons
 
 TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
                                     const omt::Progress& progress, Eigen::VectorXd& h, const Abandon& abandon,
-                                    SphereCaps caps) {
+                                    int first_level, int last_level) {
   if (!src.surface || dst.sphere_sites.rows() != dst.mass.size())
     invalid("'" + src.name + "' or '" + dst.name + "' has no sphere image for the exact distance");
   omt::Points3 sites = dst.sphere_sites;
@@ -154,14 +154,14 @@ TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Ei
   o.multilevel = true;  // real shapes' sphere densities span orders of magnitude too
   // Where a lower cap follows (below), a solve that creeps stops early (OmtOptions::
   // stall_window): the stalled first attempts took most of a crowded pair's time.
-  const bool retry = &src != &dst && caps != SphereCaps::kOwnOnly;
-  if (&src != &dst) o.stall_window = kStallWindow;
+  const bool retry = &src != &dst;
+  if (retry) o.stall_window = kStallWindow;
   TransportCost c;
-  if (caps != SphereCaps::kLoweredOnly) {
+  if (first_level == 0) {
     c = transport_to(dst, progress, abandon, o, h, [&](const omt::OmtOptions& oo) {
       return omt::solve_surface_omt(*src.surface, sites, dst.mass, oo);
     });
-    if (c.converged || c.abandoned || !retry) return c;
+    if (c.converged || c.abandoned || !retry || last_level == 0) return c;
   }
   // The retry at lower caps (issue 23). bear's 13,826 sites into dino's density (29 % of its
   // mass at the 1e4 cap) stall: every refused trial of the line search empties a few small
@@ -177,9 +177,10 @@ TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Ei
   const omt::SurfaceDensity& surface = *src.surface;
   const Eigen::VectorXd image = mesh::face_areas(surface.faces, surface.vertices);
   const double peak = surface.density.maxCoeff();
-  constexpr std::array<double, 2> kFactors = {10.0, 100.0};
-  for (const double factor : kFactors) {
-    o.stall_window = factor != kFactors.back() ? kStallWindow : 0;  // the last cap runs to its end
+  constexpr std::array<double, kLowestCapLevel> kFactors = {10.0, 100.0};
+  for (int level = std::max(1, first_level); level <= last_level; ++level) {
+    const double factor = kFactors[level - 1];
+    o.stall_window = level != kLowestCapLevel ? kStallWindow : 0;  // the last cap runs to its end
     omt::SurfaceDensity lower = surface;
     Eigen::VectorXd mass = surface.density.cwiseProduct(image);
     const DensityCap moved = cap_density(surface.faces, surface.vertices, image, peak / factor, mass);
@@ -348,8 +349,9 @@ struct Eval {
   int iterations = 0;
   double max_relative_error = 0, max_relative_cost_gap = 0;
   std::array<double, 2> lowered_cap{}, lowered_shift{};  // TransportCost::density_cap, per direction
-  int source = -1;       // PairResult::source
-  Eigen::VectorXd h[2];  // the heights reached (b's sites, a's sites)
+  int source = -1;          // PairResult::source
+  Eigen::VectorXd h[2];     // the heights reached (b's sites, a's sites)
+  TransportCost cost[2];    // per direction solved
 };
 
 class PairSolver {
@@ -383,7 +385,7 @@ class PairSolver {
   void solve(Eval& e, const Eigen::VectorXd (&start)[2], double ceiling, Directions use, Direction direction) {
     const bool watch = std::isfinite(ceiling);
     PairBound bound(opt_.debias ? b_.quantization : 0.0, opt_.debias ? a_.quantization : 0.0, ceiling, use);
-    TransportCost c[2];
+    TransportCost* c = e.cost;
     std::vector<int> solved;
     for (int k = 0; k < 2; ++k)
       if (use[k]) solved.push_back(k);
@@ -396,25 +398,42 @@ class PairSolver {
       c[k] = direction(k, e.h[k], ab);
       if (watch && c[k].converged) bound.update(k, c[k].w2_squared);
     });
+    for (int k : solved) e.iterations += c[k].iterations;
+    combine(e, use, bound.bound());
+  }
+
+ public:
+  /// e's figures from its directions in `use` (the value their mean); `bound` is the dual
+  /// bound of the value, taken where one of them did not converge.
+  void combine(Eval& e, Directions use, double bound) const {
     const Shape* dst[2] = {&b_, &a_};
     double* value[2] = {&e.forward, &e.backward};
     double* raw[2] = {&e.raw_forward, &e.raw_backward};
-    e.mean = 0;
-    for (int k : solved) {
-      e.iterations += c[k].iterations;
-      e.abandoned = e.abandoned || c[k].abandoned;
-      e.converged = e.converged && c[k].converged;
-      e.max_relative_error = std::max(e.max_relative_error, c[k].max_relative_error);
-      e.max_relative_cost_gap = std::max(e.max_relative_cost_gap, c[k].relative_cost_gap);
-      e.lowered_cap[k] = c[k].density_cap;
-      e.lowered_shift[k] = c[k].density_shift;
-      *raw[k] = std::sqrt(std::max(0.0, c[k].w2_squared));
-      *value[k] = std::sqrt(std::max(0.0, c[k].w2_squared - (opt_.debias ? dst[k]->quantization : 0.0)));
+    const int count = use[0] + use[1];
+    e.mean = e.max_relative_error = e.max_relative_cost_gap = 0;
+    e.converged = true;
+    e.abandoned = false;
+    for (int k = 0; k < 2; ++k) {
+      const TransportCost& c = e.cost[k];
+      *value[k] = *raw[k] = kNaN;
+      e.lowered_cap[k] = e.lowered_shift[k] = 0;
+      if (!use[k]) continue;
+      e.abandoned = e.abandoned || c.abandoned;
+      e.converged = e.converged && c.converged;
+      e.max_relative_error = std::max(e.max_relative_error, c.max_relative_error);
+      e.max_relative_cost_gap = std::max(e.max_relative_cost_gap, c.relative_cost_gap);
+      e.lowered_cap[k] = c.density_cap;
+      e.lowered_shift[k] = c.density_shift;
+      *raw[k] = std::sqrt(std::max(0.0, c.w2_squared));
+      *value[k] = std::sqrt(std::max(0.0, c.w2_squared - (opt_.debias ? dst[k]->quantization : 0.0)));
       e.mean += *value[k] / count;
     }
-    e.lower_bound = e.converged ? e.mean : bound.bound();
+    e.lower_bound = e.converged ? e.mean : bound;
     if (e.abandoned) e.converged = false;
+    e.source = count == 2 ? -1 : use[0] ? 0 : 1;
   }
+
+ private:
 
   const Shape& a_;
   const Shape& b_;
@@ -430,41 +449,42 @@ class PairSolver {
 // transport from the other density converges at the shapes' own caps, within a few per
 // cent of the time. Both directions estimate the same W2 of the two measures (debiased, they
 // agree to 0.1 % where both converge: bear x bull 1.0730 / 1.0737), so that direction alone
-// is the distance: the less crowded density onto the more crowded shape's sites. Should it
-// not converge at the own caps, both directions are solved with the lowered caps as
-// before, the first attempt not repeated. Equal capped masses (none capped: most shapes) keep
-// both directions. The choice depends on the pair, not on its order: d(A, B) = d(B, A).
+// is the distance: the less crowded density onto the more crowded shape's sites. Equal
+// capped masses (none capped: most shapes) keep both directions, each lowering its own cap
+// as it needs. The choice depends on the pair, not on its order: d(A, B) = d(B, A).
 int PairSolver::sphere_source() const {
   if (a_.capped_mass == b_.capped_mass) return -1;
   return a_.capped_mass < b_.capped_mass ? 0 : 1;
 }
 
+// Where that one direction does not converge at the own caps either (two crowded copies of
+// one shape: dino x its remeshed copy, whose peaks sit apart by more than their width), both
+// directions are solved at a tenth of the peaks, then at a hundredth, side by side; the
+// first cap at which one converges gives the distance, the mean of those that did there
+// (dino x remeshed dino: at a hundredth, only the copy's density onto dino's sites).
 Eval PairSolver::sphere(int g, double ceiling) {
   const Eigen::VectorXd none[2];
-  auto run = [&](Directions use, std::array<SphereCaps, 2> caps) {
+  auto run = [&](Directions use, int first, int last) {
     Eval e;
     e.frame = g;
     solve(e, none, ceiling, use, [&](int k, Eigen::VectorXd& h, const Abandon& ab) {
-      return k == 0 ? transport_cost_sphere(a_, b_, kFlips[g], progress_, h, ab, caps[0])
-                    : transport_cost_sphere(b_, a_, kFlips[g], progress_, h, ab, caps[1]);
+      return k == 0 ? transport_cost_sphere(a_, b_, kFlips[g], progress_, h, ab, first, last)
+                    : transport_cost_sphere(b_, a_, kFlips[g], progress_, h, ab, first, last);
     });
     return e;
   };
-  constexpr SphereCaps kAll = SphereCaps::kOwnThenLowered;
   const int k = sphere_source();
-  if (k < 0) return run(kBoth, {kAll, kAll});
-  Directions one = {k == 0, k == 1};
-  std::array<SphereCaps, 2> caps = {kAll, kAll};
-  caps[k] = SphereCaps::kOwnOnly;
-  Eval e = run(one, caps);
-  if (e.converged || e.abandoned) {
-    e.source = k;
-    return e;
+  if (k < 0) return run(kBoth, 0, kLowestCapLevel);
+  Eval e = run({k == 0, k == 1}, 0, 0);
+  int iterations = e.iterations;
+  for (int level = 1; level <= kLowestCapLevel && !e.converged && !e.abandoned; ++level) {
+    e = run(kBoth, level, level);
+    iterations += e.iterations;
+    for (int j = 0; j < 2 && !e.converged && !e.abandoned; ++j)
+      if (e.cost[j].converged) combine(e, {j == 0, j == 1}, 0.0);
   }
-  caps[k] = SphereCaps::kLoweredOnly;
-  Eval both = run(kBoth, caps);
-  both.iterations += e.iterations;
-  return both;
+  e.iterations = iterations;
+  return e;
 }
 
 // The candidates after the first: each solved while it may still beat `best` by more than
@@ -542,8 +562,10 @@ PairResult wasserstein_sphere(const Shape& a, const Shape& b, const WassersteinO
   if (out.source >= 0) {
     const Shape& src = out.source == 0 ? a : b;
     const Shape& dst = out.source == 0 ? b : a;
-    out.normalization += "; one direction: " + src.name + "'s density onto " + dst.name + "'s sites (" + dst.name +
-                         "'s density is capped on more mass)";
+    const bool lowered = out.lowered_cap[out.source] > 0;
+    out.normalization += "; one direction: " + src.name + "'s density onto " + dst.name + "'s sites (" +
+                         (lowered ? "the other did not converge at that lowered cap"
+                                  : dst.name + "'s density is capped on more mass") + ")";
   }
   return out;
 }

@@ -129,12 +129,12 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, c
 /// principal frame), to dst's cell tolerance; the cost is the Kantorovich dual. Where that
 /// transport does not converge (src a different shape from dst), it is solved again with
 /// src's density held to a tenth, then a hundredth, of its peak (cap_density), and the
-/// result says which cap and bound it took (TransportCost::density_cap). `caps` limits that:
-/// the shape's own density only (no retry), or the lowered caps only (the own one was tried).
-enum class SphereCaps { kOwnThenLowered, kOwnOnly, kLoweredOnly };
+/// result says which cap and bound it took (TransportCost::density_cap). The caps tried are
+/// the levels first..last of: 0 the shape's own density, 1 a tenth, 2 a hundredth of its peak.
+constexpr int kLowestCapLevel = 2;
 TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
                                     const omt::Progress& progress, Eigen::VectorXd& h, const Abandon& abandon = {},
-                                    SphereCaps caps = SphereCaps::kOwnThenLowered);
+                                    int first_level = 0, int last_level = kLowestCapLevel);
 
 /// The conformal Wasserstein distance (Alg. 5, eq. 3.31): the source is the first shape's
 /// pushed-forward area density (piecewise constant on its conformal image), the sites the
@@ -144,7 +144,9 @@ TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Ei
 /// mean of the two W2. On the sphere, where one shape's density was capped on more mass
 /// than the other's (Shape::capped_mass), the distance is the direction from the other,
 /// less crowded, density alone, when that converges at the shapes' own caps
-/// (PairResult::source); otherwise both, as above. Without markers, the second shape is turned by the rotation found by
+/// (PairResult::source); otherwise both directions at a tenth, then a hundredth of the
+/// peaks, the distance being the mean of those that converged at the first such cap where
+/// one did. Without markers, the second shape is turned by the rotation found by
 /// omt_linear (then refined, see the options). A transport that does not converge makes
 /// converged false with its error, never a silent value.
 PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions& options = {});
