@@ -402,7 +402,6 @@ class PairSolver {
     combine(e, use, bound.bound());
   }
 
- public:
   /// e's figures from its directions in `use` (the value their mean); `bound` is the dual
   /// bound of the value, taken where one of them did not converge.
   void combine(Eval& e, Directions use, double bound) const {
@@ -432,8 +431,6 @@ class PairSolver {
     if (e.abandoned) e.converged = false;
     e.source = count == 2 ? -1 : use[0] ? 0 : 1;
   }
-
- private:
 
   const Shape& a_;
   const Shape& b_;
