@@ -24,20 +24,21 @@ sys.path.insert(0, os.path.join(HERE, "..", "tests", "cli"))
 from clitest import read_obj, read_off  # noqa: E402
 
 
-def measured(cmd):
-    """Runs cmd in a child that reports its own peak RSS; returns (stdout, seconds, peak MB)."""
+def measured(cmd, stream_stderr=False):
+    """Runs cmd in a child that reports its own peak RSS; returns (stdout, seconds, peak MB).
+    With stream_stderr, cmd's stderr (its progress) goes straight to ours as it is written."""
     probe = ("import resource, subprocess, sys\n"
-             "p = subprocess.run(sys.argv[1:], capture_output=True, text=True)\n"
-             "sys.stderr.write(p.stderr)\n"
+             "p = subprocess.run(sys.argv[1:], stdout=subprocess.PIPE, text=True)\n"
              "print(p.returncode, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)\n"
              "print(p.stdout, end='')\n")
     t0 = time.time()
-    p = subprocess.run([sys.executable, "-c", probe, *cmd], capture_output=True, text=True)
+    p = subprocess.run([sys.executable, "-c", probe, *cmd], stdout=subprocess.PIPE,
+                       stderr=None if stream_stderr else subprocess.PIPE, text=True)
     dt = time.time() - t0
     first, _, rest = p.stdout.partition("\n")
     rc, kb = (int(x) for x in first.split())
     if rc not in (0, 3):
-        raise SystemExit(f"{cmd} failed ({rc}): {p.stderr}")
+        raise SystemExit(f"{cmd} failed ({rc}){'' if stream_stderr else ': ' + p.stderr}")
     return rest, dt, kb / 1024
 
 

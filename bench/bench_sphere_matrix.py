@@ -88,7 +88,7 @@ def main():
     out = os.path.join(o.work, "D-sphere.csv")
     cmd = [o.exe, "matrix", *[p for p, _ in shapes], "-o", out, "--method", "wasserstein", "--domain", "sphere",
            "--jobs", str(o.jobs), "--json", "--progress", "--cache", os.path.join(o.work, "cache")]
-    text, wall, mb = measured(cmd)
+    text, wall, mb = measured(cmd, stream_stderr=True)
     if not text.strip():
         raise SystemExit("the matrix failed")
     summary = json.loads(text)
