@@ -5,7 +5,8 @@
 //
 // Usage: bench_pair A.off B.off [repeats=15] [threads=2] [disk|sphere]
 // BENCH_TRACE=1 in the environment prints every Newton iteration's error and clock time
-// (with threads=1 the two directions' lines come one after the other).
+// (with threads=1 the two directions' lines come one after the other). BENCH_CACHE=DIR keeps
+// the prepared shapes there (distance::cached_shape), so that repeated runs skip the maps.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -17,6 +18,7 @@
 #include "common/parallel.hpp"
 #include "process.hpp"
 #include "distance/distance.hpp"
+#include "distance/matrix.hpp"
 #include "jobs/jobs.hpp"
 #include "mesh/validate.hpp"
 
@@ -41,7 +43,8 @@ int main(int argc, char** argv) {
     std::vector<distance::Shape> shapes;
     for (int k = 1; k <= 2; ++k) {
       const distance::ShapeInput in = jobs::shape_input(mesh::load_mesh(argv[k]), argv[k], argv[k], request);
-      shapes.push_back(distance::prepare_shape(in.mesh, in.name, in.options));
+      const char* cache = std::getenv("BENCH_CACHE");
+      shapes.push_back(distance::cached_shape(in, cache ? cache : ""));
     }
     distance::WassersteinOptions o;
     o.parallel_directions = threads > 1;

@@ -10,6 +10,7 @@
 #include <Eigen/Geometry>
 #include <Eigen/SparseCore>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 #include <omp.h>
@@ -77,12 +78,19 @@ struct Contribution {
   int cell;
   double mass, second;
   Vec3 first;
-  int slots_begin, slots_end;  // into the triangle's slot list
+  int slots_begin, slots_end;  // into the thread's slot list
 };
 
-struct TriangleResult {
+// One thread's pieces, triangle after triangle: a list per thread, not two per triangle
+// (malloc and free held about a tenth of perf's samples on armadillo's sphere pair).
+struct ThreadPieces {
   std::vector<Contribution> parts;
   std::vector<std::pair<int, double>> slots;  // (CSR slot of the cell's neighbour, weight)
+};
+
+// Where triangle f's pieces are: thread `thread`'s parts [begin, end).
+struct PieceRange {
+  int thread = 0, begin = 0, end = 0;
 };
 
 }  // namespace
@@ -144,27 +152,33 @@ struct Diagram3 {
   }
 
   // The neighbour lists (sorted, as neighbour_lists makes them) from the finite cells' six
-  // edges each: every site's list filled with its repeats, then sorted and made unique on
-  // its own. CGAL's edge iterator circulates around every edge to find its canonical cell,
-  // which cost more.
+  // edges each: the cells' corners read once into a plain array, every site's list filled
+  // with its repeats, which a stamp per site drops before the few left are sorted (each
+  // neighbour comes about six times over). CGAL's edge iterator circulates around every edge
+  // to find its canonical cell, which cost more.
   void cell_neighbours(int n) {
-    start.assign(n + 1, 0);
+    std::vector<std::array<int, 4>> corners;
+    corners.reserve(rt.number_of_finite_cells());
     for (auto c = rt.finite_cells_begin(); c != rt.finite_cells_end(); ++c)
-      for (int a = 0; a < 4; ++a) start[c->vertex(a)->info() + 1] += 3;
+      corners.push_back({c->vertex(0)->info(), c->vertex(1)->info(), c->vertex(2)->info(), c->vertex(3)->info()});
+    start.assign(n + 1, 0);
+    for (const auto& c : corners)
+      for (int a = 0; a < 4; ++a) start[c[a] + 1] += 3;
     for (int i = 0; i < n; ++i) start[i + 1] += start[i];
     nbr.resize(start[n]);
     std::vector<int> fill(start.begin(), start.end() - 1);
-    for (auto c = rt.finite_cells_begin(); c != rt.finite_cells_end(); ++c)
+    for (const auto& c : corners)
       for (int a = 0; a < 4; ++a)
         for (int b = 0; b < 4; ++b)
-          if (a != b) nbr[fill[c->vertex(a)->info()]++] = c->vertex(b)->info();
+          if (a != b) nbr[fill[c[a]]++] = c[b];
+    std::vector<int> stamp(n, -1);
     int out = 0;
     for (int i = 0; i < n; ++i) {
-      const auto first = nbr.begin() + start[i], last = nbr.begin() + start[i + 1];
-      std::sort(first, last);
-      const auto end = std::unique(first, last);
-      start[i] = out;
-      out = static_cast<int>(std::copy(first, end, nbr.begin() + out) - nbr.begin());
+      const int first = out;
+      for (int k = start[i]; k < start[i + 1]; ++k)
+        if (const int j = nbr[k]; stamp[j] != i) stamp[j] = i, nbr[out++] = j;
+      std::sort(nbr.begin() + first, nbr.begin() + out);
+      start[i] = first;
     }
     start[n] = out;
     nbr.resize(out);
@@ -197,29 +211,35 @@ class TriangleCells {
     last_owner_ = static_cast<int>(std::find(d.present.begin(), d.present.end(), 1) - d.present.begin());
   }
 
-  void run(int f, TriangleResult& out) {
+  // hint: a cell near the triangle, where the walk starts (-1: none; then from the last
+  // triangle's owner).
+  PieceRange run(int f, int hint, int thread, ThreadPieces& out) {
+    const int first = static_cast<int>(out.parts.size());
+    const size_t first_slot = out.slots.size();
     const double rho = surface_.density[f];
-    if (!(rho > 0)) return;
+    if (!(rho > 0)) return {thread, first, first};
     for (int v = 0; v < 3; ++v) corner_[v] = surface_.vertices.row(surface_.faces(f, v));
     normal_ = (corner_[1] - corner_[0]).cross(corner_[2] - corner_[0]).normalized();
     const Vec3 g = (corner_[0] + corner_[1] + corner_[2]) / 3;
-    int owner = greedy_owner(g, sites_, h_, d_, last_owner_);
-    for (int attempt = 0; attempt < 2 && out.parts.empty(); ++attempt) {
+    const bool hinted = hint >= 0 && hint < static_cast<int>(d_.present.size()) && d_.present[hint];
+    int owner = greedy_owner(g, sites_, h_, d_, hinted ? hint : last_owner_);
+    for (int attempt = 0; attempt < 2 && static_cast<int>(out.parts.size()) == first; ++attempt) {
       if (attempt == 1) {
         // CGAL's exact nearest_power_vertex, whose exact fallbacks on cospherical sites took
         // a third of the time, only where the walk's owner gets no piece (round-off at a tie).
         const RT3::Vertex_handle v = d_.rt.nearest_power_vertex(K::Point_3(g.x(), g.y(), g.z()));
         if (v == RT3::Vertex_handle() || v->info() == owner) break;
         owner = v->info();
-        out.slots.clear();
+        out.slots.resize(first_slot);
       }
       last_owner_ = owner;
       flood(owner, 2 * f + attempt, rho, out);
     }
+    return {thread, first, static_cast<int>(out.parts.size())};
   }
 
  private:
-  void flood(int owner, int mark, double rho, TriangleResult& out) {
+  void flood(int owner, int mark, double rho, ThreadPieces& out) {
     queue_.assign(1, owner);
     stamp_[owner] = mark;
     for (size_t q = 0; q < queue_.size(); ++q) {
@@ -239,7 +259,7 @@ class TriangleCells {
   // The piece's integrals about site i, and per side on a neighbour's plane its weight in
   // the Hessian: rho |side| / |P_T (y_i - y_j)|; the neighbours across its sides of
   // positive length go on the flood's queue.
-  Contribution integrate(int i, const Vec3& yi, double rho, int mark, TriangleResult& out) {
+  Contribution integrate(int i, const Vec3& yi, double rho, int mark, ThreadPieces& out) {
     const size_t m = piece_.p.size();
     Contribution c{i, 0, 0, Vec3::Zero(), static_cast<int>(out.slots.size()), 0};
     const Vec3& p0 = piece_.p[0];
@@ -281,7 +301,8 @@ class TriangleCells {
 
 }  // namespace
 
-SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& h) {
+SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& h,
+                                 std::span<const int> hint) {
   surface.check();
   const int n = static_cast<int>(sites.rows());
   if (n == 0) invalid("no sites");
@@ -289,26 +310,36 @@ SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& s
   if (!sites.allFinite() || !h.allFinite()) invalid("sites and heights must be finite");
   const Diagram3 d(sites, h);
   const int nf = static_cast<int>(surface.faces.rows());
-  std::vector<TriangleResult> result(nf);
+  if (!hint.empty() && static_cast<int>(hint.size()) != nf)
+    invalid("owner hints: " + std::to_string(hint.size()) + " for " + std::to_string(nf) + " triangles");
+  std::vector<ThreadPieces> pieces(omp_get_max_threads());
+  std::vector<PieceRange> range(nf);
 #pragma omp parallel
   {
     TriangleCells cells(surface, sites, h, d);
+    const int thread = omp_get_thread_num();
 #pragma omp for schedule(dynamic, 64)
-    for (int f = 0; f < nf; ++f) cells.run(f, result[f]);
+    for (int f = 0; f < nf; ++f) range[f] = cells.run(f, hint.empty() ? -1 : hint[f], thread, pieces[thread]);
   }
   // Sums in triangle order: the same bits on any number of threads.
   SurfaceCells cells;
+  cells.owner.resize(nf);
+  for (int f = 0; f < nf; ++f)
+    cells.owner[f] = range[f].begin == range[f].end ? -1 : pieces[range[f].thread].parts[range[f].begin].cell;
   cells.mass = Eigen::VectorXd::Zero(n);
   cells.second_moment = Eigen::VectorXd::Zero(n);
   cells.first = Points3::Zero(n, 3);
   std::vector<double> slot_weight(d.nbr.size(), 0.0);
-  for (const TriangleResult& r : result)
-    for (const Contribution& c : r.parts) {
+  for (const PieceRange& at : range) {
+    const ThreadPieces& r = pieces[at.thread];
+    for (int p = at.begin; p < at.end; ++p) {
+      const Contribution& c = r.parts[p];
       cells.mass[c.cell] += c.mass;
       cells.second_moment[c.cell] += c.second;
       cells.first.row(c.cell) += c.first.transpose();
       for (int s = c.slots_begin; s < c.slots_end; ++s) slot_weight[r.slots[s].first] += r.slots[s].second;
     }
+  }
   for (int i = 0; i < n; ++i) {
     if (!d.present[i] || !(cells.mass[i] > 0)) ++cells.empty_cells;
     for (int k = d.start[i]; k < d.start[i + 1]; ++k)
@@ -365,7 +396,7 @@ void surface_coarse_start(const SurfaceDensity& surface, const Points3& sites, c
                           Eigen::VectorXd& h, SurfaceOmtResult& r) {
   std::optional<Eigen::VectorXd> start = surface_coarse_to_fine(surface, sites, r.target, opt, r);
   if (!start) return;
-  SurfaceCells c = surface_power_cells(surface, sites, *start);
+  SurfaceCells c = surface_power_cells(surface, sites, *start, r.cells.owner);
   if (c.empty_cells > 0) {
     r.levels = 1;
     return;
@@ -463,9 +494,9 @@ SurfaceOmtResult solve_surface(const SurfaceDensity& surface, const Points3& sit
       SurfaceCells c[2];
       for (int k = 0; k < count; ++k) trial[k] = h + (t * std::ldexp(1.0, -k)) * dh;
       if (count == 2)
-        parallel_for(2, 2, [&](int k) { c[k] = surface_power_cells(surface, sites, trial[k]); });
+        parallel_for(2, 2, [&](int k) { c[k] = surface_power_cells(surface, sites, trial[k], r.cells.owner); });
       else
-        c[0] = surface_power_cells(surface, sites, trial[0]);
+        c[0] = surface_power_cells(surface, sites, trial[0], r.cells.owner);
       for (int k = 0; k < count && !accepted; ++k, ++halvings, t *= 0.5) {
         if (c[k].empty_cells > 0 || c[k].mass.minCoeff() < eps0) continue;
         if (relative_norm(c[k].mass - nu) <= (1 - 0.5 * t) * gnorm || max_relative(c[k].mass) <= opt.tolerance) {

@@ -1067,6 +1067,41 @@ TEST(SurfaceCells, ChordalCellsOnAnInscribedPolyhedronMatchAPlainOverlay) {
   expect_plain_surface_cells(S, y, h);
 }
 
+TEST(SurfaceCells, TheWalksStartingCellsDoNotChangeTheCells) {
+  // surface_power_cells' hints only start each triangle's walk to its centroid's cell: the
+  // owners of an evaluation at other heights, or arbitrary numbers (out of range: ignored),
+  // give the same cells to the bit.
+  const omt::SurfaceDensity S = icosphere_density(3, 5);
+  std::mt19937 rng(11);
+  std::normal_distribution<double> N;
+  const int n = 300;
+  omt::Points3 y(n, 3);
+  for (int i = 0; i < n; ++i) y.row(i) = Eigen::Vector3d(N(rng), N(rng), N(rng)).normalized().transpose();
+  const Eigen::VectorXd h = Eigen::VectorXd::Random(n) * 0.02;
+  const omt::SurfaceCells plain = omt::surface_power_cells(S, y, h);
+  const int nf = static_cast<int>(S.faces.rows());
+  ASSERT_EQ(static_cast<int>(plain.owner.size()), nf);
+  for (int f = 0; f < nf; ++f) ASSERT_TRUE(plain.owner[f] >= 0 && plain.owner[f] < n) << f;
+  std::vector<int> arbitrary(nf);
+  std::uniform_int_distribution<int> U(-3, n + 3);
+  for (int& a : arbitrary) a = U(rng);
+  for (const std::vector<int>& hint : {omt::surface_power_cells(S, y, Eigen::VectorXd::Zero(n)).owner, arbitrary}) {
+    const omt::SurfaceCells c = omt::surface_power_cells(S, y, h, hint);
+    EXPECT_EQ(c.mass, plain.mass);
+    EXPECT_EQ(c.second_moment, plain.second_moment);
+    EXPECT_EQ(c.first, plain.first);
+    EXPECT_EQ(c.owner, plain.owner);
+    ASSERT_EQ(c.edges.size(), plain.edges.size());
+    for (size_t e = 0; e < c.edges.size(); ++e) {
+      EXPECT_EQ(c.edges[e].i, plain.edges[e].i);
+      EXPECT_EQ(c.edges[e].j, plain.edges[e].j);
+      EXPECT_EQ(c.edges[e].length, plain.edges[e].length);
+    }
+  }
+  EXPECT_ERROR(omt::surface_power_cells(S, y, h, std::vector<int>(3, 0)), ErrorCode::kInvalidArgument,
+               "owner hints: 3 for 1280 triangles");
+}
+
 TEST(SurfaceCells, CosphericalSitesAtEqualHeightsGetTheirCells) {
   // The sites are the mesh's own vertices at h = 0: all cospherical, every 3-D power sphere
   // degenerate (the start of a transport between two sphere maps).
