@@ -56,8 +56,10 @@ struct SurfaceCells {
 /// cell's neighbours in CGAL's 3-D regular triangulation; triangles run in parallel and the
 /// sums are taken in triangle order, so the result does not depend on the thread count.
 /// `hint` (empty, or one per triangle: an earlier evaluation's SurfaceCells::owner) starts each
-/// triangle's search for its centroid's cell near it: any cell gives the same cells, a near
-/// one in a few steps of the walk instead of tens where the sites crowd.
+/// triangle's search for its centroid's cell near it, a few steps of the walk instead of tens
+/// where the sites crowd; where the hints bound the scores on the surface, a centre point at
+/// the origin also goes into the triangulation (see Diagram3). Any hints give the same cells
+/// to round-off (the cuts can come in a different set, so not always to the bit).
 /// Throws Error(kInvalidArgument) for sizes that do not match or non-finite input.
 SurfaceCells surface_power_cells(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& h,
                                  std::span<const int> hint = {});
