@@ -9,6 +9,7 @@
 #include <random>
 
 #include "common/error.hpp"
+#include "common/parallel.hpp"
 #include "conformal/conformal_map.hpp"
 #include "mesh/geometry.hpp"
 #include "mesh/shapes.hpp"
@@ -1051,6 +1052,27 @@ omt::SurfaceDensity icosphere_density(int level, unsigned seed) {
   return S;
 }
 
+// The density e^(k z) on the four times subdivided icosahedron (e^(2k) from pole to pole).
+omt::SurfaceDensity polar_density(double k) {
+  const mesh::TriMesh m = mesh::make_icosphere(4);
+  omt::SurfaceDensity S;
+  S.vertices = m.V;
+  S.faces = m.F;
+  S.density.resize(m.num_faces());
+  for (int f = 0; f < m.num_faces(); ++f)
+    S.density[f] = std::exp(k * (m.V(m.F(f, 0), 2) + m.V(m.F(f, 1), 2) + m.V(m.F(f, 2), 2)) / 3);
+  return S;
+}
+
+// n points drawn uniformly on the unit sphere.
+omt::Points3 random_sphere_points(int n, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> N;
+  omt::Points3 y(n, 3);
+  for (int i = 0; i < n; ++i) y.row(i) = Eigen::Vector3d(N(rng), N(rng), N(rng)).normalized().transpose();
+  return y;
+}
+
 }  // namespace
 
 TEST(SurfaceCells, ChordalCellsOnAnInscribedPolyhedronMatchAPlainOverlay) {
@@ -1193,17 +1215,8 @@ TEST(SurfaceOmt, TheMultilevelSolveReachesThePlainSolvesTransport) {
   // with equal masses: the spherical Voronoi start is far more than 10x off in the densest
   // cells, so the coarse-to-fine start runs (1,600 -> 200 sites); both solves must meet every
   // target with the same cost and the same heights up to a constant.
-  const mesh::TriMesh m = mesh::make_icosphere(4);
-  omt::SurfaceDensity S;
-  S.vertices = m.V;
-  S.faces = m.F;
-  S.density.resize(m.num_faces());
-  for (int f = 0; f < m.num_faces(); ++f)
-    S.density[f] = std::exp(4 * (m.V(m.F(f, 0), 2) + m.V(m.F(f, 1), 2) + m.V(m.F(f, 2), 2)) / 3);
-  std::mt19937 rng(21);
-  std::normal_distribution<double> N;
-  omt::Points3 y(1600, 3);
-  for (int i = 0; i < 1600; ++i) y.row(i) = Eigen::Vector3d(N(rng), N(rng), N(rng)).normalized().transpose();
+  const omt::SurfaceDensity S = polar_density(4);
+  const omt::Points3 y = random_sphere_points(1600, 21);
   const Eigen::VectorXd nu = Eigen::VectorXd::Ones(1600);
   const omt::SurfaceCells voronoi = omt::surface_power_cells(S, y, Eigen::VectorXd::Zero(1600));
   const Eigen::VectorXd target = nu * (S.mass() / nu.sum());
@@ -1223,6 +1236,49 @@ TEST(SurfaceOmt, TheMultilevelSolveReachesThePlainSolvesTransport) {
   EXPECT_LE(max_relative(multi.cells.mass, multi.target), 1e-9);
   EXPECT_NEAR(multi.dual_value, plain.dual_value, 1e-9 * plain.dual_value);
   EXPECT_LT((multi.h - plain.h).cwiseAbs().maxCoeff(), 1e-6);  // both have mean zero
+}
+
+TEST(SurfaceOmt, TheDampedStepsAreTheSameOnOneThreadAsOnTwo) {
+  // Where the steps are damped, two trial steps are set up side by side when two OpenMP
+  // threads are free, and judged in order: the step taken must be the one a single thread
+  // takes trying them one by one. The density e^(6z) and 600 random sites with equal
+  // masses: the plain solve from the Voronoi cells is damped for many iterations. Solved twice
+  // side by side in a pool of two (OpenMP runs one thread per task: trials one by one, as in a
+  // distance matrix) and alone on the process's threads (two on CI's machines: trials two at
+  // a time), the errors on the way and the heights must agree bit for bit.
+  const omt::SurfaceDensity S = polar_density(6);
+  const omt::Points3 y = random_sphere_points(600, 61);
+  const Eigen::VectorXd nu = Eigen::VectorXd::Ones(600);
+  omt::OmtOptions o;
+  o.tolerance = 1e-9;
+  std::vector<double> wide_errors;
+  o.progress = [&](int, double error) {
+    wide_errors.push_back(error);
+    return true;
+  };
+  const omt::SurfaceOmtResult wide = omt::solve_surface_omt(S, y, nu, o);
+  ASSERT_TRUE(wide.converged) << wide.max_relative_error;
+  // Damped: the error falls by less than half in many steps of the run.
+  int damped = 0;
+  for (size_t k = 1; k < wide_errors.size(); ++k) damped += wide_errors[k] > 0.5 * wide_errors[k - 1];
+  EXPECT_GE(damped, 5);
+  omt::SurfaceOmtResult pooled[2];
+  std::vector<double> pooled_errors[2];
+  parallel_for(2, 2, [&](int k) {
+    omt::OmtOptions own = o;
+    own.progress = [&, k](int, double error) {
+      pooled_errors[k].push_back(error);
+      return true;
+    };
+    pooled[k] = omt::solve_surface_omt(S, y, nu, own);
+  });
+  for (int k = 0; k < 2; ++k) {
+    ASSERT_TRUE(pooled[k].converged) << pooled[k].max_relative_error;
+    EXPECT_EQ(pooled[k].iterations, wide.iterations);
+    EXPECT_EQ(pooled_errors[k], wide_errors);
+    EXPECT_EQ(pooled[k].h, wide.h);
+    EXPECT_LE(max_relative(pooled[k].cells.mass, pooled[k].target), 1e-9);
+  }
 }
 
 TEST(SurfaceOmt, SymmetricSitesWithEqualMassesGetSymmetricHeights) {
