@@ -28,6 +28,14 @@ using omt::Points;
 
 namespace {
 
+// A progress callback that keeps every iteration's error in `into` and lets the solve go on.
+omt::Progress recording_errors(std::vector<double>& into) {
+  return [&into](int, double error) {
+    into.push_back(error);
+    return true;
+  };
+}
+
 Points random_in_disk(int n, unsigned seed, double radius = 0.95) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> U(-1.0, 1.0);
@@ -304,10 +312,7 @@ TEST(Omt, TheDampedPhaseTakesLongerStepsThanHalvingWouldAllow) {
   omt::OmtOptions opt;
   opt.tolerance = 1e-9;
   std::vector<double> errors;
-  opt.progress = [&](int, double e) {
-    errors.push_back(e);
-    return true;
-  };
+  opt.progress = recording_errors(errors);
   auto r = omt::solve_omt(Domain::unit_disk(), y, nu, opt);
   ASSERT_TRUE(r.converged) << r.max_relative_error << " after " << r.iterations;
   EXPECT_LE(max_relative(r.cells.mass, r.target), 1e-9);
@@ -1253,10 +1258,7 @@ TEST(SurfaceOmt, TheDampedStepsAreTheSameOnOneThreadAsOnTwo) {
   omt::OmtOptions o;
   o.tolerance = 1e-9;
   std::vector<double> wide_errors;
-  o.progress = [&](int, double error) {
-    wide_errors.push_back(error);
-    return true;
-  };
+  o.progress = recording_errors(wide_errors);
   const omt::SurfaceOmtResult wide = omt::solve_surface_omt(S, y, nu, o);
   ASSERT_TRUE(wide.converged) << wide.max_relative_error;
   // Damped: the error falls by less than half in many steps of the run.
@@ -1267,10 +1269,7 @@ TEST(SurfaceOmt, TheDampedStepsAreTheSameOnOneThreadAsOnTwo) {
   std::vector<double> pooled_errors[2];
   parallel_for(2, 2, [&](int k) {
     omt::OmtOptions own = o;
-    own.progress = [&, k](int, double error) {
-      pooled_errors[k].push_back(error);
-      return true;
-    };
+    own.progress = recording_errors(pooled_errors[k]);
     pooled[k] = omt::solve_surface_omt(S, y, nu, own);
   });
   for (int k = 0; k < 2; ++k) {
