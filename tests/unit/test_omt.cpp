@@ -17,6 +17,7 @@
 #include "omt/barrier_energy.hpp"
 #include "omt/stall.hpp"
 #include "omt/fold_repair.hpp"
+#include "omt/newton_step.hpp"
 #include "omt/omt.hpp"
 #include "omt/power_diagram.hpp"
 #include "omt/surface_cells.hpp"
@@ -1279,6 +1280,47 @@ TEST(SurfaceOmt, TheDampedStepsAreTheSameOnOneThreadAsOnTwo) {
     EXPECT_EQ(pooled[k].h, wide.h);
     EXPECT_LE(max_relative(pooled[k].cells.mass, pooled[k].target), 1e-9);
   }
+}
+
+TEST(SurfaceOmt, TheFirstStepIsTheLargestHalvingThatPasses) {
+  // A solve's first step is searched by jumps and a bisection of the exponent, not by
+  // halving one trial at a time: it must still be the largest t = 2^-k whose cells pass the
+  // damped Newton test (no cell below half the smallest start cell or target, the relative
+  // gradient norm cut by t/2). The density e^(8z), 200 random sites with equal masses, the
+  // Voronoi start: every t = 2^-k from that start is judged here as the solver judges it,
+  // and one iteration of the solver must land on the first that passes.
+  const omt::SurfaceDensity S = polar_density(8, 3);
+  const omt::Points3 y = random_sphere_points(200, 63);
+  const Eigen::VectorXd target = Eigen::VectorXd::Constant(200, S.mass() / 200);
+  const omt::SurfaceCells start = omt::surface_power_cells(S, y, Eigen::VectorXd::Zero(200));
+  ASSERT_EQ(start.empty_cells, 0);
+  const Eigen::VectorXd g = start.mass - target;
+  auto norm = [&](const Eigen::VectorXd& m) { return ((m - target).array() / target.array()).matrix().norm(); };
+  omt::detail::NewtonFactor llt;
+  llt.setMode(Eigen::CholmodSimplicialLLt);
+  const std::optional<Eigen::VectorXd> dh = omt::detail::newton_direction(start.edges, g, 0, llt);
+  ASSERT_TRUE(dh.has_value());
+  const double floor = 0.5 * std::min(target.minCoeff(), start.mass.minCoeff());
+  std::vector<bool> passes;
+  for (int k = 0; k < 30; ++k) {
+    const double t = std::ldexp(1.0, -k);
+    const omt::SurfaceCells c = omt::surface_power_cells(S, y, t * *dh, start.owner);
+    passes.push_back(c.empty_cells == 0 && c.mass.minCoeff() >= floor && norm(c.mass) <= (1 - 0.5 * t) * norm(start.mass));
+  }
+  const int first = static_cast<int>(std::find(passes.begin(), passes.end(), true) - passes.begin());
+  ASSERT_LT(first, 30);
+  // Deep enough to take jumps and a bisection, off the jumps' own exponents (0, 2, 6, 10, ...),
+  // and monotone beyond: the halving would take 2^-first.
+  EXPECT_GE(first, 3);
+  EXPECT_NE((first + 2) % 4, 0);
+  EXPECT_TRUE(std::all_of(passes.begin() + first, passes.end(), [](bool b) { return b; }));
+  omt::OmtOptions o;
+  o.tolerance = 1e-9;
+  o.max_iterations = 1;
+  const omt::SurfaceOmtResult r = omt::solve_surface_omt(S, y, Eigen::VectorXd::Ones(200), o);
+  EXPECT_EQ(r.iterations, 1);
+  const Eigen::VectorXd h = std::ldexp(1.0, -first) * *dh;
+  EXPECT_EQ(r.h, Eigen::VectorXd(h.array() - h.mean()));
 }
 
 TEST(SurfaceOmt, SymmetricSitesWithEqualMassesGetSymmetricHeights) {
