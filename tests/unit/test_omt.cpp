@@ -1253,7 +1253,7 @@ TEST(SurfaceOmt, TheDampedStepsAreTheSameOnOneThreadAsOnTwo) {
   // threads are free, and judged in order: the step taken must be the one a single thread
   // takes trying them one by one. The density e^(6z) on a thrice subdivided icosahedron and
   // 200 random sites with equal masses: the plain solve from the Voronoi cells is damped in
-  // most of its 31 iterations (small, for the sanitized builds). Solved twice
+  // most of its 29 iterations (small, for the sanitized builds). Solved twice
   // side by side in a pool of two (OpenMP runs one thread per task: trials one by one, as in a
   // distance matrix) and alone on the process's threads (two on CI's machines: trials two at
   // a time), the errors on the way and the heights must agree bit for bit.
