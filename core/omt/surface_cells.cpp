@@ -454,8 +454,7 @@ void surface_coarse_start(const SurfaceDensity& surface, const Points3& sites, c
 
 // One Newton iteration's step along dh, Kitagawa-Merigot-Thibert damped: the largest
 // t = 2^-k, k < 30, whose cells pass `passes(t, cells)` (every cell above the floor, the
-// gradient norm cut by t/2), searched from four times the last step taken (at most 1); h,
-// cells and last_t move to it. False where none passes.
+// gradient norm cut by t/2); h, cells and last_t move to it. False where none passes.
 template <class Passes>
 bool damped_step(const SurfaceDensity& surface, const Points3& sites, const Eigen::VectorXd& dh, bool first,
                  const Passes& passes, Eigen::VectorXd& h, SurfaceCells& cells, double& last_t) {
@@ -465,11 +464,6 @@ bool damped_step(const SurfaceDensity& surface, const Points3& sites, const Eige
     last_t = t;
     return true;
   };
-  // Starting at four times the last step: where the steps stay short for many iterations
-  // (measured: oblong's density to retinal's vertices, 100 iterations at t ~ 1/256) each then
-  // costs two or three sets of cells instead of nine, and a run of full steps comes back
-  // within a few iterations.
-  double t = std::min(1.0, 4 * last_t);
   if (first) {
     // A level's first step has no last step to start from, and from a coarse-to-fine start
     // it is often tiny: 2^-13 to 2^-24 on camel's and cow x bull's levels (bench/RESULTS.md,
@@ -480,25 +474,24 @@ bool damped_step(const SurfaceDensity& surface, const Points3& sites, const Eige
     // pairs the same iterations and distances, with 5-9 % fewer sets of cells (session 62).
     int refused = -1, passed = -1;
     SurfaceCells best;
-    for (int k = 0; k < 30 && passed < 0; k = k == 0 ? 2 : std::min(k + 4, 29)) {
+    auto judge = [&](int k) {  // t = 2^-k: true where it passes (its cells then in best)
       SurfaceCells c = surface_power_cells(surface, sites, h + std::ldexp(1.0, -k) * dh, cells.owner);
-      if (passes(std::ldexp(1.0, -k), c))
-        passed = k, best = std::move(c);
-      else
-        refused = k;
-      if (k == 29) break;
-    }
+      if (!passes(std::ldexp(1.0, -k), c)) return refused = k, false;
+      passed = k;
+      best = std::move(c);
+      return true;
+    };
+    for (const int k : {0, 2, 6, 10, 14, 18, 22, 26, 29})
+      if (judge(k)) break;
     if (passed < 0) return false;
-    while (passed - refused > 1) {
-      const int k = (passed + refused) / 2;
-      SurfaceCells c = surface_power_cells(surface, sites, h + std::ldexp(1.0, -k) * dh, cells.owner);
-      if (passes(std::ldexp(1.0, -k), c))
-        passed = k, best = std::move(c);
-      else
-        refused = k;
-    }
+    while (passed - refused > 1) judge((passed + refused) / 2);
     return take(std::ldexp(1.0, -passed), std::move(best));
   }
+  // Otherwise the halving starts at four times the last step: where the steps stay short for
+  // many iterations (measured: oblong's density to retinal's vertices, 100 iterations at
+  // t ~ 1/256) each then costs two or three sets of cells instead of nine, and a run of full
+  // steps comes back within a few iterations.
+  double t = std::min(1.0, 4 * last_t);
   // Where the steps are damped and a second core is free (two OpenMP threads here: the
   // solve runs alone, or take_idle_workers gave it a finished worker's core), the trials
   // are set up two at a time, t and t/2, one per core, and judged in order as one by one:
