@@ -35,7 +35,9 @@ int main(int argc, char** argv) {
   omt::Points3 sites = site_mesh.V;
   const double jitter = 0.2 * std::sqrt(4 * 3.14159 / site_mesh.num_vertices());
   for (int i = 0; i < sites.rows(); ++i) {
-    const Eigen::Vector3d v = Eigen::Vector3d(sites.row(i)) + jitter * Eigen::Vector3d(J(rng), J(rng), J(rng));
+    // Drawn in sequence: the order of a call's arguments differs between gcc and clang.
+    const double a = J(rng), b = J(rng), c = J(rng);
+    const Eigen::Vector3d v = Eigen::Vector3d(sites.row(i)) + jitter * Eigen::Vector3d(a, b, c);
     sites.row(i) = v.normalized().transpose();
   }
   const Eigen::VectorXd h = Eigen::VectorXd::Zero(sites.rows()), nu = Eigen::VectorXd::Ones(sites.rows());

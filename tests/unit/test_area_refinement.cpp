@@ -7,6 +7,8 @@
 // alone.
 #include <gtest/gtest.h>
 
+#include "random_draws.hpp"
+
 #include <Eigen/Geometry>
 #include <cmath>
 #include <limits>
@@ -353,9 +355,9 @@ TEST(AreaRefinement, TheSphereStepStopsAtTheFirstFaceThatTurns) {
   // where the first crossing must be the one returned.
   std::mt19937 rng(26);
   std::normal_distribution<double> normal;
-  auto unit = [&] { return Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized(); };
+  auto unit = [&] { return test::draw3(normal, rng).normalized(); };
   auto tangent = [&](const Eigen::Vector3d& x, double size) {
-    Eigen::Vector3d v(normal(rng), normal(rng), normal(rng));
+    Eigen::Vector3d v = test::draw3(normal, rng);
     return (size * (v - v.dot(x) * x)).eval();
   };
   const double limit = 2;

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include "expect_error.hpp"
+#include "random_draws.hpp"
 
 #include <cmath>
 #include <cstdio>
@@ -347,11 +348,11 @@ TEST(Distance, MergedSphereSitesAreRadiusApartAndEveryVertexWithinRadiusOfItsSit
   std::normal_distribution<double> g;
   const double radius = 1e-5;
   std::vector<Eigen::Vector3d> p;
-  for (int k = 0; k < 2000; ++k) p.push_back(Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized());
+  for (int k = 0; k < 2000; ++k) p.push_back(test::draw3(g, rng).normalized());
   for (int c = 0; c < 50; ++c) {
     const Eigen::Vector3d centre = p[c];
     for (int k = 0; k < 20; ++k)
-      p.push_back((centre + 3e-6 * Eigen::Vector3d(g(rng), g(rng), g(rng)) / std::sqrt(3.0)).normalized());
+      p.push_back((centre + 3e-6 * test::draw3(g, rng) / std::sqrt(3.0)).normalized());
   }
   omt::Points3 X(static_cast<Eigen::Index>(p.size()), 3);
   for (size_t k = 0; k < p.size(); ++k) X.row(static_cast<Eigen::Index>(k)) = p[k].transpose();
@@ -547,7 +548,7 @@ Shape random_sites(int n, unsigned seed) {
   s.name = "sites";
   s.sphere = true;
   s.sphere_sites.resize(n, 3);
-  for (int i = 0; i < n; ++i) s.sphere_sites.row(i) = Eigen::RowVector3d(g(rng), g(rng), g(rng)).normalized();
+  for (int i = 0; i < n; ++i) s.sphere_sites.row(i) = test::draw3(g, rng).normalized().transpose();
   s.mass = Eigen::VectorXd::Constant(n, 4 * kPi / n);
   return s;
 }

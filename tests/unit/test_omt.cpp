@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include "expect_error.hpp"
+#include "random_draws.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -151,13 +152,18 @@ TEST(PowerCells, TheFilteredInCircleTestAgreesWithTheExactOneNearDegeneracy) {
   int disagreements = 0;
   for (int k = 0; k < 200000; ++k) {
     const double scale = std::pow(10.0, -6 + 9 * U(rng));
-    const double cx = scale * std::pow(10.0, 3 * U(rng)) * (U(rng) - 0.5), cy = scale * (U(rng) - 0.5);
+    const double spread = std::pow(10.0, 3 * U(rng));  // the draws one by one: the operands of *
+    const double cx = scale * spread * (U(rng) - 0.5), cy = scale * (U(rng) - 0.5);  // are unsequenced
     const double w0 = scale * scale * (U(rng) - 0.5);  // common weight: same power circle
     const double radius = scale * (0.5 + U(rng));
     double a[4];
     for (double& x : a) x = 2 * std::numbers::pi * U(rng);
     std::sort(a, a + 3);  // p, q, r counter-clockwise
-    const double off = k % 5 == 0 ? 0.0 : scale * std::pow(10.0, -17 + 8 * U(rng)) * (U(rng) - 0.5);
+    double off = 0;
+    if (k % 5 != 0) {
+      const double size = std::pow(10.0, -17 + 8 * U(rng));
+      off = scale * size * (U(rng) - 0.5);
+    }
     auto on_circle = [&](double angle, double extra, double* out) {
       out[0] = cx + (radius + extra) * std::cos(angle);
       out[1] = cy + (radius + extra) * std::sin(angle);
@@ -649,7 +655,7 @@ TEST(PiecewiseConstantDensity, CellsNearAManySidedOutlineMatchAPlainOverlay) {
   std::uniform_real_distribution<double> U(-1.0, 1.0), R(0.2, 5.0);
   Points V = m.V.leftCols(2);
   for (int v = 0; v < V.rows(); ++v)
-    if (V.row(v).norm() < 0.95) V.row(v) += 0.02 * Eigen::RowVector2d(U(rng), U(rng));
+    if (V.row(v).norm() < 0.95) V.row(v) += 0.02 * test::draw2(U, rng).transpose();
   Eigen::VectorXd rho(m.num_faces());
   std::vector<std::pair<std::vector<Eigen::Vector2d>, double>> triangles;
   for (int f = 0; f < m.num_faces(); ++f) {
@@ -768,7 +774,7 @@ TEST(SphereDomain, CellsAgreeWithSamplingTheSphere) {
   Eigen::VectorXd mc = Eigen::VectorXd::Zero(n);
   Eigen::MatrixXd first = Eigen::MatrixXd::Zero(n, 3);
   for (int k = 0; k < samples; ++k) {
-    Eigen::Vector3d X(N(rng), N(rng), N(rng));
+    Eigen::Vector3d X = test::draw3(N, rng);
     X.normalize();
     const double u = X.x() / (1 - X.z()), v = X.y() / (1 - X.z());
     int best = 0;
@@ -962,7 +968,7 @@ TEST(Omt, SitesCloseTogetherKeepTheirCellsAndReachTheirMasses) {
   std::normal_distribution<double> g;
   Points y(42, 2);
   for (int i = 0; i < 40; ++i) {  // stereographic images of random points on the sphere
-    Eigen::Vector3d x(g(rng), g(rng), g(rng));
+    Eigen::Vector3d x = test::draw3(g, rng);
     x.normalize();
     x.z() = std::min(x.z(), 0.9);
     y.row(i) << x.x() / (1 - x.z()), x.y() / (1 - x.z());
@@ -1076,10 +1082,7 @@ omt::Points3 random_sphere_points(int n, unsigned seed) {
   std::mt19937 rng(seed);
   std::normal_distribution<double> N;
   omt::Points3 y(n, 3);
-  for (int i = 0; i < n; ++i) {
-    const double a = N(rng), b = N(rng), c = N(rng);
-    y.row(i) = Eigen::Vector3d(a, b, c).normalized().transpose();
-  }
+  for (int i = 0; i < n; ++i) y.row(i) = test::draw3(N, rng).normalized().transpose();
   return y;
 }
 
@@ -1094,7 +1097,7 @@ TEST(SurfaceCells, ChordalCellsOnAnInscribedPolyhedronMatchAPlainOverlay) {
   std::normal_distribution<double> N;
   omt::Points3 y(50, 3);
   for (int i = 0; i < 50; ++i) {
-    const Eigen::Vector3d v(N(rng), N(rng), N(rng));
+    const Eigen::Vector3d v = test::draw3(N, rng);
     y.row(i) = v.normalized().transpose();
   }
   const Eigen::VectorXd h = Eigen::VectorXd::Random(50) * 0.02;
@@ -1113,7 +1116,7 @@ TEST(SurfaceCells, TheWalksStartingCellsDoNotChangeTheCells) {
   std::normal_distribution<double> N;
   const int n = 300;
   omt::Points3 y(n, 3);
-  for (int i = 0; i < n; ++i) y.row(i) = Eigen::Vector3d(N(rng), N(rng), N(rng)).normalized().transpose();
+  for (int i = 0; i < n; ++i) y.row(i) = test::draw3(N, rng).normalized().transpose();
   const Eigen::VectorXd h = Eigen::VectorXd::Random(n) * 0.02;
   const omt::SurfaceCells plain = omt::surface_power_cells(S, y, h);
   const int nf = static_cast<int>(S.faces.rows());
@@ -1177,7 +1180,7 @@ TEST(SurfaceOmt, RecoversTheHeightsThatMadeTheTargets) {
   std::normal_distribution<double> N;
   omt::Points3 y(80, 3);
   for (int i = 0; i < 80;) {  // at least 0.2 apart
-    const Eigen::Vector3d v = Eigen::Vector3d(N(rng), N(rng), N(rng)).normalized();
+    const Eigen::Vector3d v = test::draw3(N, rng).normalized();
     bool apart = true;
     for (int j = 0; j < i; ++j) apart = apart && (Eigen::Vector3d(y.row(j)) - v).norm() > 0.2;
     if (apart) y.row(i++) = v.transpose();

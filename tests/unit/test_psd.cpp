@@ -22,7 +22,9 @@ TEST(Psd, IsotropicClosedFormMatchesTheEigendecomposition) {
     if (trial % 5 == 2) J << 40 * N(rng), N(rng), 0.01 * N(rng), 0.02 * N(rng);  // a sliver
     if (J.determinant() <= 0) J.col(0) *= -1;
     ASSERT_GT(J.determinant(), 0);
-    const Eigen::Matrix4d H = isotropic_derivatives_2d(J, N(rng), N(rng), N(rng), N(rng), N(rng)).H;
+    double d[5];  // drawn one by one: a call's arguments are evaluated in no set order
+    for (double& x : d) x = N(rng);
+    const Eigen::Matrix4d H = isotropic_derivatives_2d(J, d[0], d[1], d[2], d[3], d[4]).H;
     const Eigen::Matrix4d want = clamped<4>(H), got = clamped_isotropic_2d(J, H);
     const double scale = H.cwiseAbs().maxCoeff();
     EXPECT_LE((got - want).cwiseAbs().maxCoeff(), 1e-11 * scale) << "J =\n" << J << "\nH =\n" << H;
