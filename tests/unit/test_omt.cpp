@@ -152,8 +152,9 @@ TEST(PowerCells, TheFilteredInCircleTestAgreesWithTheExactOneNearDegeneracy) {
   int disagreements = 0;
   for (int k = 0; k < 200000; ++k) {
     const double scale = std::pow(10.0, -6 + 9 * U(rng));
-    const double spread = std::pow(10.0, 3 * U(rng));  // the draws one by one: the operands of *
-    const double cx = scale * spread * (U(rng) - 0.5), cy = scale * (U(rng) - 0.5);  // are unsequenced
+    // Each draw in its own expression: the operands of * are evaluated in no set order.
+    const double spread = std::pow(10.0, 3 * U(rng));
+    const double cx = scale * spread * (U(rng) - 0.5), cy = scale * (U(rng) - 0.5);
     const double w0 = scale * scale * (U(rng) - 0.5);  // common weight: same power circle
     const double radius = scale * (0.5 + U(rng));
     double a[4];
