@@ -1,7 +1,8 @@
 // Random vectors drawn one coordinate after another. A call such as
 // Vector3d(N(rng), N(rng), N(rng)) leaves the order of its three draws unspecified, and gcc and
 // clang take them in opposite orders, so the Release (gcc) and sanitizer (clang) builds would
-// solve different cases (session 62 found one such test). Every test draws through these.
+// solve different cases (session 62 found one such test). Tests that draw a random vector
+// draw it through these; other multi-draw expressions in the tests use named locals.
 #pragma once
 
 #include <Eigen/Core>
