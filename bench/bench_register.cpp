@@ -49,6 +49,10 @@ struct Route {
   std::vector<double> all_errors;
 };
 
+bool g_euclidean = false;
+bool g_no_refine = false;  // consistency: the centroid maps, without the area refinement
+bool g_no_isometric = false;  // eval: g as Alg. 7 makes it, without the isometric refinement
+
 jobs::RegisterRequest request_for(const registration::TruthPair& p, jobs::Domain domain, bool cut, jobs::MapMethod m) {
   jobs::RegisterRequest r;
   r.domain = domain;
@@ -56,6 +60,7 @@ jobs::RegisterRequest request_for(const registration::TruthPair& p, jobs::Domain
   r.method = m;
   r.source_landmarks = p.source_landmarks;
   r.target_landmarks = p.target_landmarks;
+  r.isometric = !g_no_isometric;
   return r;
 }
 
@@ -69,8 +74,6 @@ std::vector<double> euclidean_errors(const registration::TruthPair& p, const std
   return e;
 }
 
-bool g_euclidean = false;
-bool g_no_refine = false;  // consistency: the centroid maps, without the area refinement
 
 int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
   const std::vector<std::pair<Deformation, double>> deformations = {
@@ -83,8 +86,8 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
   // its normals where the surface curls within a face, with no fold of any map.
   // chart-flips: faces turned over on the target surface itself, read in the target's
   // conformal map (registration::chart_flipped_faces), for the registration / for the truth.
-  std::printf("%-28s %-8s %-16s %7s %8s %8s %8s %6s %6s %11s %11s %7s %s\n", "mesh", "deform", "route", "V", "median", "mean",
-              "p90", "folds", "flips", "truth-flips", "chart-flips", "sec", "start");
+  std::printf("%-28s %-8s %-16s %7s %8s %8s %8s %6s %6s %11s %11s %7s %-8s %s\n", "mesh", "deform", "route", "V", "median", "mean",
+              "p90", "folds", "flips", "truth-flips", "chart-flips", "sec", "start", "isometric");
   for (const std::string& path : meshes) {
     mesh::CleanMesh cm = mesh::load_mesh(path);
     mesh::require_valid(cm, path);
@@ -119,11 +122,17 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
           double mean = 0;
           for (double x : e) mean += x / static_cast<double>(e.size());
           const std::string chart_column = std::to_string(chart_flips(found)) + "/" + std::to_string(truth_chart_flips);
-          std::printf("%-28s %-8s %-16s %7d %8.4f %8.4f %8.4f %6d %6d %11d %11s %7.2f %s\n", path.substr(path.rfind('/') + 1).c_str(),
+          // isometric: the refinement's steps and seconds, '*' where it stopped unconverged.
+          const nlohmann::json& iso = out.report["isometric"];
+          const std::string iso_column = iso["applied"].get<bool>() ? std::to_string(iso["iterations"].get<int>()) +
+                                                                          (iso["converged"].get<bool>() ? "" : "*") + " " +
+                                                                          std::to_string(iso["seconds"].get<double>()).substr(0, 4) + "s"
+                                                                    : "-";
+          std::printf("%-28s %-8s %-16s %7d %8.4f %8.4f %8.4f %6d %6d %11d %11s %7.2f %-8s %s\n", path.substr(path.rfind('/') + 1).c_str(),
                       registration::deformation_name(d), jobs::map_method_name(route.method), a.mesh.num_vertices(),
                       quantile(e, 0.5), mean, quantile(e, 0.9), out.report["domain_folded_faces"].get<int>(),
                       out.report["morph_flipped_faces"].get<int>(), truth_flips, chart_column.c_str(), sec,
-                      out.report["match"]["start"].get<std::string>().c_str());
+                      out.report["match"]["start"].get<std::string>().c_str(), iso_column.c_str());
         } catch (const std::exception& e) {
           std::printf("%-28s %-8s %-16s failed: %s\n", path.c_str(), registration::deformation_name(d),
                       jobs::map_method_name(route.method), e.what());
@@ -220,7 +229,7 @@ int time_one(const std::string& path, int subdivide) {
 
 int main(int argc, char** argv) {
   if (argc < 3) {
-    std::fprintf(stderr, "usage: bench_register eval [--samples N] [--landmarks K] [--euclidean] MESH... | time MESH [--subdivide S]\n");
+    std::fprintf(stderr, "usage: bench_register eval [--samples N] [--landmarks K] [--euclidean] [--no-isometric] MESH... | time MESH [--subdivide S]\n");
     return 2;
   }
   const std::string mode = argv[1];
@@ -233,6 +242,7 @@ int main(int argc, char** argv) {
     else if (a == "--subdivide" && i + 1 < argc) subdivide = std::atoi(argv[++i]);
     else if (a == "--euclidean") g_euclidean = true;
     else if (a == "--no-refine") g_no_refine = true;
+    else if (a == "--no-isometric") g_no_isometric = true;
     else meshes.push_back(a);
   }
   try {

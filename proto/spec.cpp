@@ -149,6 +149,7 @@ void to_proto(const jobs::RegisterRequest& r, pb::RegisterSpec* s) {
   for (int v : r.target_landmarks) s->add_target_landmarks(v);
   s->set_tolerance(r.tolerance);
   s->set_max_iterations(r.max_iterations);
+  s->set_harmonic_only(!r.isometric);
 }
 
 jobs::RegisterRequest from_proto(const pb::RegisterSpec& s) {
@@ -161,6 +162,7 @@ jobs::RegisterRequest from_proto(const pb::RegisterSpec& s) {
   r.target_landmarks.assign(s.target_landmarks().begin(), s.target_landmarks().end());
   r.tolerance = s.tolerance();
   if (s.max_iterations() != 0) r.max_iterations = s.max_iterations();
+  r.isometric = !s.harmonic_only();
   r.validate();
   return r;
 }

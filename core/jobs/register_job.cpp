@@ -19,6 +19,7 @@
 #include "mesh/topology.hpp"
 #include "register/correspondence.hpp"
 #include "register/domain_match.hpp"
+#include "register/isometric_refine.hpp"
 
 namespace brenier::jobs {
 
@@ -240,9 +241,25 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
   // turn's steps fold (domain_match.hpp). A Moebius start first was no more accurate on the
   // conformal route (bench/RESULTS.md, session 31).
   const registration::MatchStart start = registration::MatchStart::kRotation;
-  const registration::DomainMatch g =
+  registration::DomainMatch g =
       sphere ? registration::match_spheres(a.positions, a.surface.F, pairs, start)
              : registration::match_disks(a.positions, a.surface.F, pairs, start);
+  nlohmann::json isometric = {{"applied", false}};
+  if (r.isometric && !sphere) {
+    std::vector<int> fixed;
+    for (const auto& p : pairs) fixed.push_back(p.vertex);
+    const auto t_iso = std::chrono::steady_clock::now();
+    registration::IsometricRefineResult ir =
+        registration::refine_isometric_disk(a.surface, g.mapped, b.surface, b.positions, fixed);
+    g.mapped = std::move(ir.mapped);
+    isometric = {{"applied", true},
+                 {"iterations", ir.iterations},
+                 {"converged", ir.converged},
+                 {"energy_before", ir.energy_before},
+                 {"energy_after", ir.energy_after},
+                 {"shortened_steps", ir.shortened_steps},
+                 {"seconds", seconds_since(t_iso)}};
+  }
   const int folds = domain_folds(a.surface, g.mapped, sphere);
   const auto at = registration::locate(b.surface.F, b.positions, g.mapped, sphere);
   const double t_match = seconds_since(t1);
@@ -287,6 +304,7 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
                 {"start_rms", g.start_rms},
                 {"steps", g.steps},
                 {"max_landmark_error", g.max_landmark_error}};
+  j["isometric"] = isometric;
   j["domain_folded_faces"] = folds;
   j["morph_flipped_faces"] = morph_flips;
   j["seconds"] = {{"maps", t_maps}, {"match", t_match}};

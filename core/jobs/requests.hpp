@@ -99,6 +99,9 @@ struct RegisterRequest {
   std::vector<int> source_landmarks, target_landmarks;
   double tolerance = 0;  // the maps' tolerance (0: their default)
   int max_iterations = 200;
+  /// Disk: after g, move the source's domain points toward an isometry of the two surfaces
+  /// (registration/isometric_refine.hpp), landmarks held, no face turned over.
+  bool isometric = true;
 
   static constexpr size_t kMaxLandmarks = 1000;  // each matching step solves a dense (L+3)^2 system
   void validate() const;

@@ -39,16 +39,26 @@ Eigen::Vector3d barycentric(const Eigen::Vector3d& a, const Eigen::Vector3d& b, 
 
 }  // namespace
 
-std::vector<SurfacePoint> locate(const mesh::Faces& F, const mesh::Vertices& domain, const mesh::Vertices& points,
-                                 bool sphere) {
+struct DomainLocator::Tree {
   std::vector<Triangle> tris;
-  tris.reserve(static_cast<size_t>(F.rows()));
+  brenier::registration::Tree tree;
+};
+
+DomainLocator::DomainLocator(const mesh::Faces& F, const mesh::Vertices& domain, bool sphere)
+    : F_(F), domain_(domain), sphere_(sphere), tree_(std::make_unique<Tree>()) {
+  tree_->tris.reserve(static_cast<size_t>(F.rows()));
   for (Eigen::Index f = 0; f < F.rows(); ++f)
-    tris.emplace_back(point(domain.row(F(f, 0)).transpose()), point(domain.row(F(f, 1)).transpose()),
-                      point(domain.row(F(f, 2)).transpose()));
-  Tree tree(tris.cbegin(), tris.cend());
-  tree.build();
-  tree.accelerate_distance_queries();
+    tree_->tris.emplace_back(point(domain.row(F(f, 0)).transpose()), point(domain.row(F(f, 1)).transpose()),
+                             point(domain.row(F(f, 2)).transpose()));
+  tree_->tree.insert(tree_->tris.cbegin(), tree_->tris.cend());
+  tree_->tree.build();
+  tree_->tree.accelerate_distance_queries();
+}
+
+DomainLocator::~DomainLocator() = default;
+
+std::vector<SurfacePoint> DomainLocator::operator()(const mesh::Vertices& points) const {
+  const Tree& t = *tree_;
   std::vector<SurfacePoint> out(static_cast<size_t>(points.rows()));
   // The tree's queries are const; each thread asks its own.
 #pragma omp parallel for schedule(dynamic, 256)
@@ -56,26 +66,31 @@ std::vector<SurfacePoint> locate(const mesh::Faces& F, const mesh::Vertices& dom
     const Eigen::Vector3d x = points.row(i).transpose();
     int face = -1;
     Eigen::Vector3d at = x;
-    if (sphere) {
+    if (sphere_) {
       const K::Ray_3 ray(K::Point_3(0, 0, 0), point(x));
-      if (auto hit = tree.first_intersection(ray)) {
+      if (auto hit = t.tree.first_intersection(ray)) {
         if (const K::Point_3* p = boost::get<K::Point_3>(&hit->first)) {
-          face = static_cast<int>(hit->second - tris.cbegin());
+          face = static_cast<int>(hit->second - t.tris.cbegin());
           at = vec(*p);
         }
       }
     }
     if (face < 0) {
-      const auto hit = tree.closest_point_and_primitive(point(x));
-      face = static_cast<int>(hit.second - tris.cbegin());
+      const auto hit = t.tree.closest_point_and_primitive(point(x));
+      face = static_cast<int>(hit.second - t.tris.cbegin());
       at = vec(hit.first);
     }
     SurfacePoint& sp = out[static_cast<size_t>(i)];
     sp.face = face;
-    sp.bary = barycentric(domain.row(F(face, 0)).transpose(), domain.row(F(face, 1)).transpose(),
-                          domain.row(F(face, 2)).transpose(), at);
+    sp.bary = barycentric(domain_.row(F_(face, 0)).transpose(), domain_.row(F_(face, 1)).transpose(),
+                          domain_.row(F_(face, 2)).transpose(), at);
   }
   return out;
+}
+
+std::vector<SurfacePoint> locate(const mesh::Faces& F, const mesh::Vertices& domain, const mesh::Vertices& points,
+                                 bool sphere) {
+  return DomainLocator(F, domain, sphere)(points);
 }
 
 mesh::Vertices positions(const mesh::TriMesh& mesh, const std::vector<SurfacePoint>& points) {

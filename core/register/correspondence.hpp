@@ -5,6 +5,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <memory>
 #include <vector>
 
 #include "mesh/mesh.hpp"
@@ -19,6 +20,25 @@ using mesh::SurfacePoint;
 /// polygon of the disk, by round-off on the sphere) gets the nearest point of the mesh.
 std::vector<SurfacePoint> locate(const mesh::Faces& F, const mesh::Vertices& domain, const mesh::Vertices& points,
                                  bool sphere);
+
+/// locate() with its search tree built once, for callers that locate many point sets in one
+/// domain mesh (the isometric refinement, once per trial step). Keeps references to F and
+/// `domain`, which must outlive it.
+class DomainLocator {
+ public:
+  DomainLocator(const mesh::Faces& F, const mesh::Vertices& domain, bool sphere);
+  ~DomainLocator();
+  DomainLocator(const DomainLocator&) = delete;
+  DomainLocator& operator=(const DomainLocator&) = delete;
+  std::vector<SurfacePoint> operator()(const mesh::Vertices& points) const;
+
+ private:
+  struct Tree;
+  const mesh::Faces& F_;
+  const mesh::Vertices& domain_;
+  bool sphere_;
+  std::unique_ptr<Tree> tree_;
+};
 
 /// The positions of surface points on a mesh: sum_i bary_i V[F(face, i)].
 mesh::Vertices positions(const mesh::TriMesh& mesh, const std::vector<SurfacePoint>& points);

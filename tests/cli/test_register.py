@@ -40,6 +40,10 @@ for method in ("area-preserving", "conformal"):
     rep = json.loads(so)
     check(rep["domain_folded_faces"] == 0 and rep["morph_flipped_faces"] == 0, f"{method}: no folds, no flipped morph faces")
     check(rep["match"]["max_landmark_error"] < 1e-9, f"{method}: the landmarks are hit: {rep['match']}")
+    # The identity is an isometry: the refinement toward one has nothing to lower.
+    iso = rep["isometric"]
+    check(iso["applied"] and iso["energy_before"] < 1e-12 and iso["energy_after"] <= iso["energy_before"],
+          f"{method}: the isometric refinement starts and ends at zero distortion: {iso}")
     with open(corr) as f:
         rows = list(csv.DictReader(f))
     check(len(rows) == len(verts), f"{method}: one row per vertex: {len(rows)} for {len(verts)}")
@@ -56,6 +60,10 @@ for method in ("area-preserving", "conformal"):
     check(worst < 1e-6, f"{method}: every vertex lands on itself: worst {worst:.3g}")
     mv, _, mf = read_obj(morph)
     check(len(mv) == len(verts) and len(mf) == len(faces), f"{method}: the morph has the source's vertices and faces")
+
+# --harmonic-only keeps g as Alg. 7 makes it.
+rc, so, se = run("register", lion, lion, "--landmarks", lm, lm, "--method", "conformal", "--harmonic-only", "--json")
+check(rc == 0 and json.loads(so)["isometric"] == {"applied": False}, f"--harmonic-only: exit {rc}, isometric {so[-200:]!r}")
 
 # Refusals: exit 2, one line naming the problem.
 short = write("short.txt", [10, 2000, 5000])

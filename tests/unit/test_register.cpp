@@ -16,11 +16,13 @@
 #include "jobs/jobs.hpp"
 #include "mesh/geometry.hpp"
 #include "mesh/shapes.hpp"
+#include "mesh/topology.hpp"
 #include "mesh/validate.hpp"
 #include "quality/quality.hpp"
 #include "register/correspondence.hpp"
 #include "register/domain_match.hpp"
 #include "register/evaluation.hpp"
+#include "register/isometric_refine.hpp"
 
 using namespace brenier;
 using namespace brenier::registration;
@@ -297,6 +299,48 @@ TEST(Correspondence, ChartFlipsCountFacesTurnedOverInTheTargetsChartOnly) {
   std::vector<SurfacePoint> off = self;
   off[0].face = d.num_faces();
   EXPECT_ERROR(chart_flipped_faces(d.F, off, d.F, d.V, false), ErrorCode::kInvalidArgument, "a face the chart does not have");
+}
+
+TEST(IsometricRefine, AWarpedMapOfAnEllipseReturnsToTheIsometryThroughTheTargetsChart) {
+  // The target is the ellipse x^2/4 + y^2 = 1 in the plane, charted onto the unit disk by
+  // (x, y) -> (x / 2, y): its metric in the chart is diag(4, 1) everywhere. The source is the
+  // same ellipse triangulated otherwise, so its one isometry onto the target fixing the centre
+  // and the point (2, 0) sends (x, y) to (x / 2, y) in the chart. g starts from that map
+  // warped by a bijection of the disk that fixes the centre and (1, 0): r -> r^1.3 and a turn
+  // of the circles that varies with the angle and the radius. The refinement must bring every
+  // vertex back to its isometric place, hold the two landmarks, keep the boundary on the
+  // circle and turn no face over.
+  const mesh::TriMesh chart = mesh::make_disk(14);
+  mesh::TriMesh target = chart;
+  target.V.col(0) *= 2;
+  const mesh::TriMesh unit = mesh::make_disk(11);
+  mesh::TriMesh source = unit;
+  source.V.col(0) *= 2;
+  mesh::Vertices start = unit.V;
+  for (int v = 0; v < start.rows(); ++v) {
+    const double r = std::hypot(unit.V(v, 0), unit.V(v, 1)), th = std::atan2(unit.V(v, 1), unit.V(v, 0));
+    const double r2 = std::pow(r, 1.3), th2 = th + r * r * 0.15 * std::sin(2 * th) + 0.4 * r * r * (1 - r * r);
+    start(v, 0) = r2 * std::cos(th2);
+    start(v, 1) = r2 * std::sin(th2);
+  }
+  ASSERT_EQ(folds(source, start, false), 0);
+  const int centre = vertex_at(unit, Eigen::Vector3d(0, 0, 0)), east = vertex_at(unit, Eigen::Vector3d(1, 0, 0));
+  auto worst_error = [&](const mesh::Vertices& X) { return (X - unit.V).rowwise().norm().maxCoeff(); };
+  const double before = worst_error(start);
+  ASSERT_GT(before, 0.1);
+
+  const IsometricRefineResult r = refine_isometric_disk(source, start, target, chart.V, {centre, east});
+  EXPECT_TRUE(r.converged) << r.iterations << " iterations";
+  EXPECT_LT(r.energy_after, 0.01 * r.energy_before);
+  EXPECT_LT(worst_error(r.mapped), 0.02) << "from " << before;
+  EXPECT_EQ(folds(source, r.mapped, false), 0);
+  EXPECT_EQ(r.mapped.row(centre), start.row(centre));
+  EXPECT_EQ(r.mapped.row(east), start.row(east));
+  const std::vector<char> boundary = mesh::boundary_flags(source);
+  for (int v = 0; v < source.num_vertices(); ++v) {
+    if (!boundary[static_cast<size_t>(v)]) continue;
+    EXPECT_NEAR(std::hypot(r.mapped(v, 0), r.mapped(v, 1)), 1.0, 1e-12) << v;
+  }
 }
 
 TEST(Register, AFlatDiskOntoARemeshedCopyOfItselfErrsOnlyAtTheRemeshingsResolution) {

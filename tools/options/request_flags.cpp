@@ -89,6 +89,9 @@ void RegisterFlags::add_to(CLI::App* cmd) {
   cmd->add_option("--tolerance", r.tolerance, "the maps' tolerance (as map --tolerance)")->check(CLI::PositiveNumber);
   cmd->add_option("--max-iterations", r.max_iterations, "Newton iterations of each map (default 200)")
       ->check(CLI::Range(1, jobs::MapRequest::kMaxIterations));
+  cmd->add_flag("--harmonic-only{false}", r.isometric,
+                "disk: keep g as Alg. 7 makes it (harmonic, held by the landmarks), without moving it toward an "
+                "isometry of the two surfaces afterwards");
 }
 
 jobs::RegisterRequest RegisterFlags::resolve() const {

@@ -1,0 +1,482 @@
+// The refinement of g toward an isometry (isometric_refine.hpp): Gauss-Newton steps on the
+// as-rigid-as-possible energy of f = phi2^-1 o g o phi1, with a barrier on each face's area.
+#include "register/isometric_refine.hpp"
+
+#include <Eigen/CholmodSupport>
+#include <Eigen/Dense>
+#include <Eigen/Sparse>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "common/error.hpp"
+#include "common/parallel.hpp"
+#include "mesh/topology.hpp"
+#include "register/correspondence.hpp"
+
+namespace brenier::registration {
+
+namespace {
+
+using Mat2 = Eigen::Matrix2d;
+using Vec2 = Eigen::Vector2d;
+using Mat32 = Eigen::Matrix<double, 3, 2>;
+
+// The barrier's weight against the isometric term.
+constexpr double kBarrier = 0.1;
+// A step is halved at most this often before the refinement stops where it is.
+constexpr int kHalvings = 14;
+// Steps in a row that must each lower the energy by less than the tolerance to stop.
+constexpr int kSmallSteps = 3;
+
+Vec2 xy(const mesh::Vertices& X, int v) { return {X(v, 0), X(v, 1)}; }
+
+double signed_area(const mesh::Vertices& U, int a, int b, int c) {
+  return (U(b, 0) - U(a, 0)) * (U(c, 1) - U(a, 1)) - (U(b, 1) - U(a, 1)) * (U(c, 0) - U(a, 0));
+}
+
+// The closest matrix with orthonormal columns to J (3 x 2), the polar factor: in closed form
+// J (J^T J)^-1/2, the square root of the 2 x 2 C = J^T J being
+// (C + sqrt(det C) I) / sqrt(tr C + 2 sqrt(det C)); by the SVD where J is nearly of rank one.
+Mat32 nearest_isometry(const Mat32& J) {
+  const Mat2 C = J.transpose() * J;
+  const double det = C.determinant(), tr = C.trace();
+  if (det > 1e-20 * tr * tr) {
+    const double sd = std::sqrt(det);
+    const Mat2 root = (C + sd * Mat2::Identity()) / std::sqrt(tr + 2 * sd);
+    return J * root.inverse();
+  }
+  Eigen::JacobiSVD<Mat32> svd(J, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  return svd.matrixU().leftCols<2>() * svd.matrixV().transpose();
+}
+
+// One source face: its corners, the gradients g_k of the linear map from its own plane (so
+// that T X^-1 = sum_k p_k g_k^T for corner images p_k) and its 3-D area.
+struct Face {
+  int v[3];
+  Vec2 g[3];
+  double area;
+};
+
+// Where each source vertex lands on the target: the point, the Jacobian of the chart's
+// inverse on the target face that holds it, and that face.
+struct Places {
+  std::vector<Eigen::Vector3d> p;
+  std::vector<Mat32> J;
+  std::vector<int> face;
+};
+
+// A face's share of the step's model: the rows of its Gauss-Newton Hessian and gradient for
+// each corner, before the corners' unknowns are applied.
+struct FaceModel {
+  Vec2 gradient[3];  // minus the energy's gradient in each corner's chart coordinates
+  Mat2 block[3][3];  // Hessian blocks between corners
+};
+
+class Refiner {
+ public:
+  Refiner(const mesh::TriMesh& source, const mesh::Vertices& mapped, const mesh::TriMesh& target,
+          const mesh::Vertices& target_domain, const std::vector<int>& fixed)
+      : target_(target), target_domain_(target_domain), locator_(target.F, target_domain, false), U_(mapped) {
+    // The chart's inverse on each target face: J = T D^-1 (T its 3-D edges, D its domain
+    // edges); zero on a face the chart flattens to a segment.
+    chart_J_.assign(static_cast<size_t>(target.num_faces()), Mat32::Zero());
+    for (int f = 0; f < target.num_faces(); ++f) {
+      const int a = target.F(f, 0), b = target.F(f, 1), c = target.F(f, 2);
+      Mat2 D;
+      D.col(0) = xy(target_domain, b) - xy(target_domain, a);
+      D.col(1) = xy(target_domain, c) - xy(target_domain, a);
+      Mat32 T;
+      T.col(0) = (target.V.row(b) - target.V.row(a)).transpose();
+      T.col(1) = (target.V.row(c) - target.V.row(a)).transpose();
+      const Mat32 J = T * D.inverse();
+      if (std::abs(D.determinant()) > 0 && J.allFinite()) chart_J_[static_cast<size_t>(f)] = J;
+    }
+    double orientation = 0;
+    for (int f = 0; f < source.num_faces(); ++f) orientation += signed_area(U_, source.F(f, 0), source.F(f, 1), source.F(f, 2));
+    sign_ = orientation < 0 ? -1.0 : 1.0;
+    for (int f = 0; f < source.num_faces(); ++f) {
+      Face face{};
+      for (int k = 0; k < 3; ++k) face.v[k] = source.F(f, k);
+      const Eigen::Vector3d e1 = source.V.row(face.v[1]) - source.V.row(face.v[0]);
+      const Eigen::Vector3d e2 = source.V.row(face.v[2]) - source.V.row(face.v[0]);
+      const double l = e1.norm(), twice = e1.cross(e2).norm();
+      if (!(l > 0) || !(twice > 0)) continue;  // a degenerate source face constrains nothing
+      Mat2 X;  // the face in its own plane
+      X << l, e1.dot(e2) / l, 0, twice / l;
+      const Mat2 P = X.inverse();
+      face.g[1] = P.row(0).transpose();
+      face.g[2] = P.row(1).transpose();
+      face.g[0] = -face.g[1] - face.g[2];
+      face.area = 0.5 * twice;
+      area_ += face.area;
+      faces_.push_back(face);
+      checked_.push_back(sign_ * signed_area(U_, face.v[0], face.v[1], face.v[2]) > 0);
+    }
+    // Unknowns: none for a landmark, one for a boundary vertex that slides on the circle,
+    // two for the rest.
+    const int n = source.num_vertices();
+    const std::vector<char> boundary = mesh::boundary_flags(source);
+    kind_.assign(static_cast<size_t>(n), 2);
+    for (int v = 0; v < n; ++v)
+      if (boundary[static_cast<size_t>(v)]) kind_[static_cast<size_t>(v)] = fixed.empty() ? 0 : 1;
+    for (int v : fixed) {
+      if (v < 0 || v >= n) invalid("a fixed vertex is not a vertex of the source");
+      kind_[static_cast<size_t>(v)] = 0;
+    }
+    first_.assign(static_cast<size_t>(n), -1);
+    for (int v = 0; v < n; ++v)
+      if (kind_[static_cast<size_t>(v)] > 0) {
+        first_[static_cast<size_t>(v)] = dofs_;
+        dofs_ += kind_[static_cast<size_t>(v)];
+      }
+  }
+
+  IsometricRefineResult run(const IsometricRefineOptions& o) {
+    IsometricRefineResult out;
+    out.mapped = U_;
+    if (dofs_ == 0 || faces_.empty()) {
+      out.converged = true;
+      return out;
+    }
+    Places at = place(U_);
+    accept(at);
+    double e = out.energy_before = energy(U_, at);
+    int small = 0;
+    while (out.iterations < o.max_iterations && small < kSmallSteps) {
+      const mesh::Vertices next = step(at);
+      // The longest of 1, 1/2, 1/4, ... of the step that lowers the energy (infinite on a
+      // face turned over) and shrinks no face to below a tenth of its area in the chart: a
+      // step that nearly folds a face jumps across its barrier, where the model no longer
+      // holds.
+      bool taken = false;
+      double t = 1;
+      for (int h = 0; h <= kHalvings && !taken; ++h, t /= 2) {
+        mesh::Vertices W = along(next, t);
+        if (shrinks_a_face(W)) continue;
+        Places at_w = place(W);
+        if (!(energy(W, at_w) < e)) continue;
+        U_ = std::move(W);
+        at = std::move(at_w);
+        accept(at);
+        const double e_next = energy(U_, at);  // with the area factors of the new place
+        small = e - e_next < o.tolerance * out.energy_before ? small + 1 : 0;
+        e = e_next;
+        taken = true;
+        out.shortened_steps += h > 0;
+      }
+      if (!taken) break;  // no step along the model's direction lowers the energy
+      ++out.iterations;
+    }
+    out.converged = small >= kSmallSteps;
+    out.energy_after = e;
+    out.mapped = U_;
+    return out;
+  }
+
+ private:
+  // Each vertex of U on the target: first in the target face that held it at the last
+  // accepted place (most vertices stay in theirs from one step to the next), by the search
+  // tree where it left it.
+  Places place(const mesh::Vertices& U) const {
+    std::vector<SurfacePoint> at(static_cast<size_t>(U.rows()));
+    std::vector<Eigen::Index> lost;
+    for (Eigen::Index v = 0; v < U.rows(); ++v) {
+      const int f = hint_.empty() ? -1 : hint_[static_cast<size_t>(v)];
+      Eigen::Vector3d bary;
+      if (f >= 0 && inside(f, xy(U, static_cast<int>(v)), bary)) {
+        at[static_cast<size_t>(v)] = {f, bary};
+        continue;
+      }
+      lost.push_back(v);
+    }
+    if (!lost.empty()) {
+      mesh::Vertices Q(static_cast<Eigen::Index>(lost.size()), 3);
+      for (size_t i = 0; i < lost.size(); ++i) Q.row(static_cast<Eigen::Index>(i)) = U.row(lost[i]);
+      const std::vector<SurfacePoint> found = locator_(Q);
+      for (size_t i = 0; i < lost.size(); ++i) at[static_cast<size_t>(lost[i])] = found[i];
+    }
+    Places out;
+    out.p.resize(at.size());
+    out.J.resize(at.size());
+    out.face.resize(at.size());
+    for (size_t v = 0; v < at.size(); ++v) {
+      const SurfacePoint& s = at[v];
+      out.p[v] = s.bary[0] * target_.V.row(target_.F(s.face, 0)).transpose() +
+                 s.bary[1] * target_.V.row(target_.F(s.face, 1)).transpose() +
+                 s.bary[2] * target_.V.row(target_.F(s.face, 2)).transpose();
+      out.J[v] = chart_J_[static_cast<size_t>(s.face)];
+      out.face[v] = s.face;
+    }
+    return out;
+  }
+
+  // Whether chart point x lies in target face f (its barycentric coordinates then in `bary`).
+  bool inside(int f, const Vec2& x, Eigen::Vector3d& bary) const {
+    const Vec2 a = xy(target_domain_, target_.F(f, 0));
+    Mat2 D;
+    D << xy(target_domain_, target_.F(f, 1)) - a, xy(target_domain_, target_.F(f, 2)) - a;
+    if (D.determinant() == 0) return false;
+    const Vec2 w = D.inverse() * (x - a);
+    if (!(w.minCoeff() >= 0 && w.sum() <= 1)) return false;
+    bary = Eigen::Vector3d(1 - w.sum(), w.x(), w.y());
+    return true;
+  }
+
+  // A new accepted place: its target faces start the next search, and its area factors
+  // serve the barrier until the next one.
+  void accept(const Places& at) {
+    hint_ = at.face;
+    read_area_factors();
+  }
+
+  // rho_f: the chart inverse's area factor (|J_t e1 x J_t e2|) on the target face t under
+  // face f's centroid, read at the accepted place and held through a step's trials, so that
+  // s stays linear in each corner as the step's model has it. Read afresh at each trial, a
+  // corner crossing into a target face of another area factor made the barrier jump, and one
+  // nearly folded face refused every full step of the whole mesh (lion-head's twisted pair).
+  // Not the chord triangle's own factor: on a face spanning a curl of the target that is far
+  // below the surface's, and its barrier then pushed faces apart against the model, whose
+  // steps then folded faces at every length. Not the mean of the corners' faces' factors
+  // either: a corner on a target vertex lies on any of its faces, and a mesh registered onto
+  // itself drifted off the identity.
+  void read_area_factors() {
+    rho_.resize(faces_.size());
+    std::vector<size_t> lost;
+    mesh::Vertices centroids(static_cast<Eigen::Index>(faces_.size()), 3);
+    for (size_t f = 0; f < faces_.size(); ++f) {
+      const Face& F = faces_[f];
+      const Vec2 c = (xy(U_, F.v[0]) + xy(U_, F.v[1]) + xy(U_, F.v[2])) / 3;
+      int under = -1;
+      Eigen::Vector3d bary;
+      for (int k = 0; k < 3 && under < 0; ++k) {  // most centroids lie in a corner's target face
+        const int t = hint_[static_cast<size_t>(F.v[k])];
+        if (inside(t, c, bary)) under = t;
+      }
+      if (under >= 0) {
+        rho_[f] = area_factor(under);
+      } else {
+        lost.push_back(f);
+        centroids.row(static_cast<Eigen::Index>(lost.size() - 1)) << c.x(), c.y(), 0;
+      }
+    }
+    if (lost.empty()) return;
+    const std::vector<SurfacePoint> found = locator_(centroids.topRows(static_cast<Eigen::Index>(lost.size())));
+    for (size_t i = 0; i < lost.size(); ++i) rho_[lost[i]] = area_factor(found[i].face);
+  }
+
+  double area_factor(int t) const {
+    const Mat32& J = chart_J_[static_cast<size_t>(t)];
+    return J.col(0).cross(J.col(1)).norm();
+  }
+
+  // T X^-1 of face f: its image's 3-D edges (chords of the target) over its own.
+  Mat32 jacobian(const Places& at, size_t f) const {
+    const Face& F = faces_[f];
+    Mat32 J = Mat32::Zero();
+    for (int k = 0; k < 3; ++k) J += at.p[static_cast<size_t>(F.v[k])] * F.g[k].transpose();
+    return J;
+  }
+
+  // The image's area on the target over the face's own, signed by its orientation in the
+  // chart: det E rho_f / (2 area); zero where the face turns over in the chart.
+  double area_ratio(const mesh::Vertices& U, size_t f) const {
+    const Face& F = faces_[f];
+    return sign_ * signed_area(U, F.v[0], F.v[1], F.v[2]) * rho_[f] / (2 * F.area);
+  }
+
+  // The area-weighted mean over the faces of |J - R|^2 (R the nearest isometry) plus the
+  // barrier beta (s + 1/s - 2) on the area ratio s: zero at an isometry, infinite where a face
+  // that began the right way round turns over.
+  // Faces in parallel, summed in their order (the same energy on any number of threads).
+  double energy(const mesh::Vertices& U, const Places& at) const {
+    std::vector<double> per_face(faces_.size());
+#pragma omp parallel for schedule(static)
+    for (size_t f = 0; f < faces_.size(); ++f) {
+      const Mat32 J = jacobian(at, f);
+      double e = faces_[f].area * (J - nearest_isometry(J)).squaredNorm();
+      if (checked_[f] && rho_[f] > 0) {  // no barrier where the image has no area
+        const double s = area_ratio(U, f);
+        e = s > 0 ? e + faces_[f].area * kBarrier * (s + 1 / s - 2) : std::numeric_limits<double>::infinity();
+      }
+      per_face[f] = e;
+    }
+    double e = 0;
+    for (double x : per_face) e += x;
+    return e / area_;
+  }
+
+  // The face's Gauss-Newton model. The image points are linearized through the chart's
+  // inverse (p_v + J_v d_v) and R is held, which gives blocks area (g_j . g_k) J_j^T J_k. Held R
+  // charges every turn of the face as a stretch, though the energy's own curvature is lower
+  // along its rotation modes (Smith, Goes, Kim 2019, the as-rigid-as-possible eigensystem):
+  // in its plane along R Rot90 / sqrt 2 it is 1 - 2 / (s1 + s2), out of its plane along
+  // n v_i^T (n its normal, v_i, s_i J's right singular vectors and values) 1 - 1/s_i, in
+  // units where a stretch costs 1. The model keeps the positive part of each: with R held,
+  // a face that turns or slides over the curved target (it tilts with it) was stiff, and the
+  // twisted pairs crept 2 % per step for 100 steps. The barrier's model is psi + psi' ds +
+  // psi'' ds^2 / 2, ds linear in each corner, psi'' > 0.
+  FaceModel face_model(const Places& at, size_t f) const {
+    const Face& F = faces_[f];
+    const Mat32 J = jacobian(at, f);
+    const Mat32 R = nearest_isometry(J);
+    const Mat2 C = J.transpose() * J;
+    const Eigen::SelfAdjointEigenSolver<Mat2> es(C);
+    const double s0 = std::sqrt(std::max(0.0, es.eigenvalues()[0])), s1 = std::sqrt(std::max(0.0, es.eigenvalues()[1]));
+    Mat2 rot90;
+    rot90 << 0, -1, 1, 0;
+    const Mat32 twist = R * rot90 / std::sqrt(2.0);
+    Eigen::Vector3d normal = J.col(0).cross(J.col(1));
+    const double nn = normal.norm();
+    if (nn > 0) normal /= nn;
+    // (mode in the corners' unknowns, the share of the model's stiffness taken off along it)
+    Vec2 mode[3][3];
+    double relief[3] = {s0 + s1 > 0 ? std::min(1.0, 2 / (s0 + s1)) : 0.0, nn > 0 && s0 > 0 ? std::min(1.0, 1 / s0) : 0.0,
+                        nn > 0 && s1 > 0 ? std::min(1.0, 1 / s1) : 0.0};
+    for (int k = 0; k < 3; ++k) {
+      const Mat32& Jk = at.J[static_cast<size_t>(F.v[k])];
+      mode[0][k] = Jk.transpose() * twist * F.g[k];
+      mode[1][k] = Jk.transpose() * normal * es.eigenvectors().col(0).dot(F.g[k]);
+      mode[2][k] = Jk.transpose() * normal * es.eigenvectors().col(1).dot(F.g[k]);
+    }
+    Vec2 ds[3] = {Vec2::Zero(), Vec2::Zero(), Vec2::Zero()};
+    double slope = 0, curvature = 0;
+    if (checked_[f] && rho_[f] > 0) {
+      const Vec2 a = xy(U_, F.v[0]), b = xy(U_, F.v[1]), c = xy(U_, F.v[2]);
+      const double per_det = sign_ * rho_[f] / (2 * F.area);  // s per unit of the chart's det E
+      ds[1] = per_det * Vec2((c - a).y(), -(c - a).x());
+      ds[2] = per_det * Vec2(-(b - a).y(), (b - a).x());
+      ds[0] = -ds[1] - ds[2];
+      const double s = area_ratio(U_, f);
+      slope = F.area * kBarrier * (1 - 1 / (s * s));
+      curvature = F.area * kBarrier * 2 / (s * s * s);
+    }
+    FaceModel m;
+    for (int j = 0; j < 3; ++j) {
+      const Mat32& Jj = at.J[static_cast<size_t>(F.v[j])];
+      m.gradient[j] = F.area * Jj.transpose() * (R - J) * F.g[j] - slope * ds[j];
+      for (int k = 0; k < 3; ++k) {
+        Mat2 K = F.g[j].dot(F.g[k]) * Jj.transpose() * at.J[static_cast<size_t>(F.v[k])];
+        for (int i = 0; i < 3; ++i) K -= relief[i] * mode[i][j] * mode[i][k].transpose();
+        m.block[j][k] = F.area * K + curvature * ds[j] * ds[k].transpose();
+      }
+    }
+    return m;
+  }
+
+  // The columns of B are vertex v's unknowns (kind_ of them; the others zero): the plane's
+  // axes, or the circle's tangent.
+  Mat2 basis(int v) const {
+    const int k = kind_[static_cast<size_t>(v)];
+    Mat2 B = Mat2::Zero();
+    if (k == 2) B.setIdentity();
+    if (k == 1) B.col(0) = Vec2(-U_(v, 1), U_(v, 0)).normalized();
+    return B;
+  }
+
+  // The model's minimizer: U + d, boundary vertices moved along their tangent and put back on
+  // the circle, landmarks held.
+  mesh::Vertices step(const Places& at) {
+    std::vector<Eigen::Triplet<double>> entries;
+    entries.reserve(faces_.size() * 36 + static_cast<size_t>(dofs_));
+    Eigen::VectorXd rhs = Eigen::VectorXd::Zero(dofs_);
+    double diagonal = 0;
+    std::vector<FaceModel> models(faces_.size());
+#pragma omp parallel for schedule(static)
+    for (size_t f = 0; f < faces_.size(); ++f) models[f] = face_model(at, f);
+    for (size_t f = 0; f < faces_.size(); ++f) {
+      const FaceModel& m = models[f];
+      for (int j = 0; j < 3; ++j) {
+        const int vj = faces_[f].v[j], nj = kind_[static_cast<size_t>(vj)], rj = first_[static_cast<size_t>(vj)];
+        if (nj == 0) continue;
+        const Mat2 Bj = basis(vj);
+        rhs.segment(rj, nj) += (Bj.transpose() * m.gradient[j]).head(nj);
+        for (int k = 0; k < 3; ++k) {
+          const int vk = faces_[f].v[k], nk = kind_[static_cast<size_t>(vk)], rk = first_[static_cast<size_t>(vk)];
+          if (nk == 0) continue;
+          const Mat2 block = Bj.transpose() * m.block[j][k] * basis(vk);
+          for (int r = 0; r < nj; ++r)
+            for (int c = 0; c < nk; ++c) {
+              entries.emplace_back(rj + r, rk + c, block(r, c));
+              if (rj + r == rk + c) diagonal += block(r, c);
+            }
+        }
+      }
+    }
+    // A Levenberg-Marquardt shift of 1e-6 of the mean diagonal: a vertex on a target face the
+    // chart flattens has no Jacobian and would leave the system singular.
+    const double shift = 1e-6 * diagonal / dofs_;
+    for (int r = 0; r < dofs_; ++r) entries.emplace_back(r, r, shift);
+    Eigen::SparseMatrix<double> H(dofs_, dofs_);
+    H.setFromTriplets(entries.begin(), entries.end());
+    if (!analyzed_) {
+      // As the area refinement's (omt/area_refinement.cpp): OpenBLAS on this thread, the
+      // pattern analysed once with nested dissection, each factorization's library loops inline.
+      single_threaded_blas();
+      llt_.cholmod().print = 0;
+      llt_.cholmod().nmethods = 1;
+      llt_.cholmod().method[0].ordering = CHOLMOD_NESDIS;
+      llt_.analyzePattern(H);
+      analyzed_ = true;
+    }
+    with_library_loops_serial([&] { llt_.factorize(H); });
+    if (llt_.info() != Eigen::Success) fail(ErrorCode::kInternal, "the isometric refinement's system is not positive definite");
+    const Eigen::VectorXd z = llt_.solve(rhs);
+    mesh::Vertices next = U_;
+    for (int v = 0; v < U_.rows(); ++v) {
+      const int k = kind_[static_cast<size_t>(v)];
+      if (k == 0) continue;
+      Vec2 dz = Vec2::Zero();
+      dz.head(k) = z.segment(first_[static_cast<size_t>(v)], k);
+      const Vec2 u = xy(U_, v) + basis(v) * dz;
+      next(v, 0) = u.x();
+      next(v, 1) = u.y();
+    }
+    return next;
+  }
+
+  bool shrinks_a_face(const mesh::Vertices& W) const {
+    for (size_t f = 0; f < faces_.size(); ++f) {
+      if (!checked_[f]) continue;
+      const int a = faces_[f].v[0], b = faces_[f].v[1], c = faces_[f].v[2];
+      if (!(sign_ * signed_area(W, a, b, c) > 0.1 * sign_ * signed_area(U_, a, b, c))) return true;
+    }
+    return false;
+  }
+
+  // U + t (next - U), boundary vertices put back on the circle.
+  mesh::Vertices along(const mesh::Vertices& next, double t) const {
+    mesh::Vertices W = U_ + t * (next - U_);
+    for (int v = 0; v < W.rows(); ++v)
+      if (kind_[static_cast<size_t>(v)] == 1) W.row(v) /= std::hypot(W(v, 0), W(v, 1));
+    return W;
+  }
+
+  const mesh::TriMesh& target_;
+  const mesh::Vertices& target_domain_;
+  DomainLocator locator_;
+  std::vector<Mat32> chart_J_;  // per target face, the Jacobian of the chart's inverse
+  mesh::Vertices U_;            // the accepted place
+  std::vector<int> hint_;       // per source vertex, its target face at the accepted place
+  double sign_ = 1, area_ = 0;
+  std::vector<Face> faces_;
+  std::vector<char> checked_;  // the face's image was the right way round at the start
+  std::vector<double> rho_;    // per face, the chart inverse's area factor at the accepted place
+  std::vector<int> kind_, first_;
+  int dofs_ = 0;
+  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt_;
+  bool analyzed_ = false;
+};
+
+}  // namespace
+
+IsometricRefineResult refine_isometric_disk(const mesh::TriMesh& source, const mesh::Vertices& mapped,
+                                            const mesh::TriMesh& target, const mesh::Vertices& target_domain,
+                                            const std::vector<int>& fixed, const IsometricRefineOptions& options) {
+  if (mapped.rows() != source.V.rows()) invalid("the refinement needs one domain point per source vertex");
+  if (target_domain.rows() != target.V.rows()) invalid("the refinement needs one domain point per target vertex");
+  Refiner r(source, mapped, target, target_domain, fixed);
+  return r.run(options);
+}
+
+}  // namespace brenier::registration
