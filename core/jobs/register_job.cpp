@@ -249,8 +249,14 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
     std::vector<int> fixed;
     for (const auto& p : pairs) fixed.push_back(p.vertex);
     const auto t_iso = std::chrono::steady_clock::now();
+    registration::IsometricRefineOptions io;
+    if (progress) {  // the stage "isometric" within the match's share, cancellable at each step
+      io.keep_going = [&](int step, double energy) {
+        return progress(Progress{"isometric", 0.9 + 0.09 * step / io.max_iterations, step, energy});
+      };
+    }
     registration::IsometricRefineResult ir =
-        registration::refine_isometric_disk(a.surface, g.mapped, b.surface, b.positions, fixed);
+        registration::refine_isometric_disk(a.surface, g.mapped, b.surface, b.positions, fixed, io);
     g.mapped = std::move(ir.mapped);
     isometric = {{"applied", true},
                  {"iterations", ir.iterations},

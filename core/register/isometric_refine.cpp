@@ -144,6 +144,7 @@ class Refiner {
     double e = out.energy_before = energy(U_, at);
     int small = 0;
     while (out.iterations < o.max_iterations && small < kSmallSteps) {
+      if (o.keep_going && !o.keep_going(out.iterations, e)) fail(ErrorCode::kCancelled, "cancelled");
       const mesh::Vertices next = step(at);
       // The longest of 1, 1/2, 1/4, ... of the step that lowers the energy (infinite on a
       // face turned over) and shrinks no face to below a tenth of its area in the chart: a

@@ -20,6 +20,7 @@
 // not move. It stops when three steps in a row lower the energy by less than the tolerance.
 #pragma once
 
+#include <functional>
 #include <vector>
 
 #include "mesh/mesh.hpp"
@@ -29,6 +30,9 @@ namespace brenier::registration {
 struct IsometricRefineOptions {
   int max_iterations = 100;
   double tolerance = 1e-3;  // a step that lowers the energy by less than this share of where it began is small
+  /// Called before each step with the steps taken and the energy; false cancels
+  /// (Error(kCancelled)).
+  std::function<bool(int step, double energy)> keep_going;
 };
 
 struct IsometricRefineResult {

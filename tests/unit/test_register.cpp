@@ -341,6 +341,12 @@ TEST(IsometricRefine, AWarpedMapOfAnEllipseReturnsToTheIsometryThroughTheTargets
     if (!boundary[static_cast<size_t>(v)]) continue;
     EXPECT_NEAR(std::hypot(r.mapped(v, 0), r.mapped(v, 1)), 1.0, 1e-12) << v;
   }
+  // A caller's cancel stops it between steps.
+  IsometricRefineOptions cancel;
+  int asked = 0;
+  cancel.keep_going = [&](int step, double) { return ++asked, step < 2; };
+  EXPECT_ERROR(refine_isometric_disk(source, start, target, chart.V, {centre, east}, cancel), ErrorCode::kCancelled, "cancelled");
+  EXPECT_EQ(asked, 3);
 }
 
 TEST(Register, AFlatDiskOntoARemeshedCopyOfItselfErrsOnlyAtTheRemeshingsResolution) {
