@@ -213,10 +213,12 @@ int time_one(const std::string& path, int subdivide) {
     const jobs::RegisterOutcome out = jobs::run_register(
         a, b, "source", "target", request_for(p, sphere ? jobs::Domain::kSphere : jobs::Domain::kDisk, false, method), 2);
     const double sec = seconds_since(t0);
-    std::printf("%s x%d (%s): %d -> %d vertices, registration %.2f s (maps %.2f s, match %.3f s), %d folds, %d flips; "
-                "pair made in %.1f s\n",
+    const nlohmann::json& iso = out.report["isometric"];
+    std::printf("%s x%d (%s): %d -> %d vertices, registration %.2f s (maps %.2f s, match %.3f s; isometric %d steps%s, %.2f s), "
+                "%d folds, %d flips; pair made in %.1f s\n",
                 path.c_str(), subdivide, jobs::map_method_name(method), a.mesh.num_vertices(), b.mesh.num_vertices(), sec,
                 out.report["seconds"]["maps"].get<double>(), out.report["seconds"]["match"].get<double>(),
+                iso.value("iterations", 0), iso.value("converged", true) ? "" : " (unconverged)", iso.value("seconds", 0.0),
                 out.report["domain_folded_faces"].get<int>(), out.report["morph_flipped_faces"].get<int>(), t_pair);
     std::fflush(stdout);
   } catch (const std::exception& e) {

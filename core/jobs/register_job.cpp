@@ -245,6 +245,7 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
       sphere ? registration::match_spheres(a.positions, a.surface.F, pairs, start)
              : registration::match_disks(a.positions, a.surface.F, pairs, start);
   nlohmann::json isometric = {{"applied", false}};
+  std::vector<mesh::SurfacePoint> located;  // g's points in the target's domain mesh, where the refinement found them
   if (r.isometric && !sphere) {
     std::vector<int> fixed;
     for (const auto& p : pairs) fixed.push_back(p.vertex);
@@ -258,6 +259,7 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
     registration::IsometricRefineResult ir =
         registration::refine_isometric_disk(a.surface, g.mapped, b.surface, b.positions, fixed, io);
     g.mapped = std::move(ir.mapped);
+    located = std::move(ir.located);
     isometric = {{"applied", true},
                  {"iterations", ir.iterations},
                  {"converged", ir.converged},
@@ -267,7 +269,9 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
                  {"seconds", seconds_since(t_iso)}};
   }
   const int folds = domain_folds(a.surface, g.mapped, sphere);
-  const auto at = registration::locate(b.surface.F, b.positions, g.mapped, sphere);
+  const std::vector<mesh::SurfacePoint> at = located.size() == static_cast<size_t>(g.mapped.rows())
+                                                 ? std::move(located)
+                                                 : registration::locate(b.surface.F, b.positions, g.mapped, sphere);
   const double t_match = seconds_since(t1);
 
   RegisterOutcome out;

@@ -2,6 +2,7 @@
 // characteristic, genus, and the class that decides which domain a mesh can be mapped to.
 #pragma once
 
+#include <array>
 #include <string>
 #include <vector>
 
@@ -42,6 +43,10 @@ struct EdgeUse {
 /// All 3F edge uses, ordered by (a, b, face): a counting sort on a, then each vertex's few
 /// uses by insertion sort -- linear in practice. Indices must be >= 0.
 std::vector<EdgeUse> sorted_edge_uses(const Faces& F);
+
+/// Per face f and corner k, the face across the edge opposite corner k: -1 on the boundary and
+/// where more than two faces share the edge.
+std::vector<std::array<int, 3>> face_neighbors(const Faces& F);
 
 /// Boundary loops as vertex cycles, each traversed in the direction of its faces' winding
 /// (for a counter-clockwise disk: counter-clockwise), longest loop first. Precondition: an

@@ -12,89 +12,26 @@
 #include "common/check.hpp"
 #include "common/parallel.hpp"
 #include "mesh/geometry.hpp"
+#include "numeric/face_hessian.hpp"
 #include "numeric/psd.hpp"
 #include "omt/barrier_energy.hpp"
 #include "omt/newton_step.hpp"
 
 namespace brenier::omt {
 
-namespace detail {
-
-// A vertex's unknowns: none (held), two (its coordinates in the geometry's frame), or one,
-// the step along the unit circle of a disk's boundary vertex (x -> (x + tau t) / |x + tau t|,
-// t = (-y, x) the circle's tangent there).
-struct Dof {
-  int offset = -1;  // first unknown, -1: held
-  int count = 0;    // 0, 1 (on the circle) or 2
-};
-
-// visit(e, row, col) for the lower-triangle entries of face (a, b, c)'s Hessian between
-// unknowns, e the column-major index into its reduced 6x6 Hessian (unknown k of corner p at
-// 2p + k).
-template <class Visit>
-void each_entry(const std::array<int, 3>& v, const std::vector<Dof>& dof, const Visit& visit) {
-  for (int p = 0; p < 3; ++p)
-    for (int q = 0; q < 3; ++q) {
-      const Dof &dp = dof[v[p]], &dq = dof[v[q]];
-      for (int a = 0; a < dp.count; ++a)
-        for (int b = 0; b < dq.count; ++b)
-          if (dp.offset + a >= dq.offset + b) visit((2 * p + a) + 6 * (2 * q + b), dp.offset + a, dq.offset + b);
-    }
-}
-
-}  // namespace detail
-
-// See area_refinement.hpp. The Hessian's entries go straight into H's values through slots.
+// See area_refinement.hpp. The Hessian's entries go straight into its values through the
+// pattern's slots (numeric/face_hessian.hpp).
 struct RefinementPlan {
-  mesh::Faces faces;                  // the mesh's faces it was made for
-  std::vector<detail::Dof> dof;       // per vertex, its unknowns
-  int n = 0;                          // unknowns in all
-  Eigen::SparseMatrix<double> H;      // the Hessian's pattern (lower triangle)
-  std::vector<int> slots;             // per face, 36 entries: the value index of each Hessian entry (-1: none)
-  detail::NewtonFactor llt;           // analysed for H's pattern (n > 0)
+  RefinementPlan(const mesh::Faces& F, const std::vector<char>& free) : faces(F), hessian(F, free) {}
+  mesh::Faces faces;             // the mesh's faces it was made for
+  numeric::FaceHessian hessian;  // the pattern, per vertex its unknowns, the analysed factor
 };
 
 namespace {
 
 // The plan for unknowns free[v] per vertex (0, 1 or 2: Dof::count).
 std::shared_ptr<RefinementPlan> plan_refinement(const mesh::Faces& F, const std::vector<char>& free) {
-  auto plan = std::make_shared<RefinementPlan>();
-  RefinementPlan& p = *plan;
-  p.faces = F;
-  p.dof.resize(free.size());
-  for (size_t r = 0; r < free.size(); ++r)
-    if (free[r] > 0) p.dof[r] = {p.n, free[r]}, p.n += free[r];
-  auto corners = [&F](Eigen::Index f) { return std::array<int, 3>{F(f, 0), F(f, 1), F(f, 2)}; };
-  std::vector<Eigen::Triplet<double>> entries;
-  for (Eigen::Index f = 0; f < F.rows(); ++f)
-    detail::each_entry(corners(f), p.dof, [&](int, int r, int c) { entries.emplace_back(r, c, 1.0); });
-  p.H.resize(p.n, p.n);
-  p.H.setFromTriplets(entries.begin(), entries.end());
-  p.H.makeCompressed();
-  p.slots.assign(static_cast<size_t>(F.rows()) * 36, -1);
-  for (Eigen::Index f = 0; f < F.rows(); ++f)
-    detail::each_entry(corners(f), p.dof, [&](int local, int r, int c) {
-      const int* rows = p.H.innerIndexPtr();
-      const int* begin = rows + p.H.outerIndexPtr()[c];
-      const int* end = rows + p.H.outerIndexPtr()[c + 1];
-      p.slots[f * 36 + local] = static_cast<int>(std::lower_bound(begin, end, r) - rows);
-    });
-  single_threaded_blas();  // before CHOLMOD reaches OpenBLAS
-  // Supernodal at every size: the 2x2 blocks of each vertex fill more than the transport's
-  // Hessian does. (Supernodal lost below 100K unknowns only while CHOLMOD's per-supernode
-  // OpenMP teams woke threads, before with_library_loops_serial: mannequin-devil's
-  // refinement, 26K unknowns, 5.2-5.4 s simplicial against 3.6-3.7 s supernodal now;
-  // lion-head 1.01 against 0.74 s; bench/RESULTS.md, session 46.)
-  p.llt.setMode(Eigen::CholmodSupernodalLLt);
-  p.llt.cholmod().print = 0;
-  // The pattern is analysed once per refinement and factored at every step, so a nested
-  // dissection ordering pays: CHOLMOD's NESDIS left 13.7M entries in the 100K-vertex disk
-  // map's factor against AMD's 17.1M, and cut mannequin-devil's refinement (53 steps) from
-  // 4.1-4.5 s to 3.4-3.6 s (bench/RESULTS.md, session 26).
-  p.llt.cholmod().nmethods = 1;
-  p.llt.cholmod().method[0].ordering = CHOLMOD_NESDIS;
-  if (p.n > 0) p.llt.analyzePattern(p.H);
-  return plan;
+  return std::make_shared<RefinementPlan>(F, free);
 }
 
 // The disk's unknowns per vertex: 2 inside, 1 on the boundary (along the circle) or 0 (held).
@@ -402,8 +339,8 @@ template <class Geometry>
 class FaceNewton {
  public:
   FaceNewton(const std::vector<detail::BarrierFace>& faces, RefinementPlan& plan, Geometry& geometry)
-      : faces_(faces), dof_(plan.dof), n_(plan.n), geometry_(geometry), local_(faces.size()), corner_g_(faces.size() * 3),
-        tangent_(plan.dof.size(), Eigen::Vector2d::Zero()), H_(plan.H), slots_(plan.slots), llt_(plan.llt) {}
+      : faces_(faces), dof_(plan.hessian.dof()), n_(plan.hessian.size()), geometry_(geometry), local_(faces.size()),
+        corner_g_(faces.size() * 3), tangent_(dof_.size(), Eigen::Vector2d::Zero()), H_(plan.hessian) {}
 
   // The energy at X (infinite when a face degenerates or turns over).
   // The faces' terms are summed in face order, not by an OpenMP reduction: libgomp combines
@@ -436,33 +373,31 @@ class FaceNewton {
       local_[k] = {T.transpose() * full.g, T.transpose() * full.H * T};
     }
     Eigen::VectorXd g = Eigen::VectorXd::Zero(n_);
-    double* values = H_.valuePtr();
-    std::fill(values, values + H_.nonZeros(), 0.0);
+    H_.clear();
     std::vector<Eigen::Vector2d> circle_g(dof_.size(), Eigen::Vector2d::Zero());
     for (long k = 0; k < nf; ++k) {
       const Local& L = local_[k];
       const detail::BarrierFace& f = faces_[k];
       for (int p = 0; p < 3; ++p) {
-        const detail::Dof& d = dof_[f.v[p]];
+        const numeric::Dof& d = dof_[f.v[p]];
         for (int a = 0; a < d.count; ++a) g[d.offset + a] += L.g[2 * p + a];
         if (d.count == 1) circle_g[f.v[p]] += corner_g_[k * 3 + p];
       }
-      for (int e = 0; e < 36; ++e)
-        if (slots_[k * 36 + e] >= 0) values[slots_[k * 36 + e]] += L.H(e % 6, e / 6);
+      H_.add(k, L.H);
     }
     // The circle's curvature: along x(tau) = (x + tau t) / |x + tau t|, x'' = -x, so the energy's
     // second derivative gains -grad . x (kept only where positive: the Hessian stays definite).
+    Eigen::SparseMatrix<double>& H = H_.matrix();
     for (size_t r = 0; r < dof_.size(); ++r)
       if (dof_[r].count == 1)
-        H_.coeffRef(dof_[r].offset, dof_[r].offset) += std::max(0.0, -circle_g[r].dot(X.row(r).head<2>().transpose()));
+        H.coeffRef(dof_[r].offset, dof_[r].offset) += std::max(0.0, -circle_g[r].dot(X.row(r).head<2>().transpose()));
     // A small multiple of the diagonal's mean keeps the clamped Hessian definite (the
     // sphere's energy is invariant under rotations).
-    const double shift = 1e-9 * H_.diagonal().sum() / n_;
-    for (int i = 0; i < n_; ++i) H_.coeffRef(i, i) += shift;
-    with_library_loops_serial([&] { llt_.factorize(H_); });
-    if (llt_.info() != Eigen::Success) return 0;
+    const double shift = 1e-9 * H.diagonal().sum() / n_;
+    for (int i = 0; i < n_; ++i) H.coeffRef(i, i) += shift;
+    if (!H_.factorize()) return 0;
     const double E0 = before = energy(X, theta);
-    const Eigen::VectorXd d = -llt_.solve(g);
+    const Eigen::VectorXd d = -H_.solve(g);
     const double decrement = -g.dot(d);
     if (!(decrement > 0) || !d.allFinite()) return 0;
     double t = std::min(1.0, 0.9 * max_step(X, d));
@@ -488,7 +423,7 @@ class FaceNewton {
   Mat6 reduction(const detail::BarrierFace& f) const {
     Mat6 T = Mat6::Zero();
     for (int p = 0; p < 3; ++p) {
-      const detail::Dof& d = dof_[f.v[p]];
+      const numeric::Dof& d = dof_[f.v[p]];
       if (d.count == 2) T.block<2, 2>(2 * p, 2 * p).setIdentity();
       if (d.count == 1) T.block<2, 1>(2 * p, 2 * p) = tangent_[f.v[p]];
     }
@@ -496,7 +431,7 @@ class FaceNewton {
   }
   // The 2-D step of vertex r in its geometry's frame.
   Eigen::Vector2d step_of(int r, const Eigen::VectorXd& d) const {
-    const detail::Dof& v = dof_[r];
+    const numeric::Dof& v = dof_[r];
     if (v.count == 2) return d.segment<2>(v.offset);
     if (v.count == 1) return d[v.offset] * tangent_[r];
     return Eigen::Vector2d::Zero();
@@ -516,16 +451,14 @@ class FaceNewton {
   }
 
   const std::vector<detail::BarrierFace>& faces_;
-  const std::vector<detail::Dof>& dof_;
+  const std::vector<numeric::Dof>& dof_;
   int n_;
   Geometry& geometry_;
   std::vector<Local> local_;           // per face, in its corners' unknowns
   mutable std::vector<double> terms_;  // per face: the energy's terms (energy())
   std::vector<Eigen::Vector2d> corner_g_;  // per face corner, the gradient in the geometry's frame
   std::vector<Eigen::Vector2d> tangent_;   // per vertex on the circle, the tangent at the step's start
-  Eigen::SparseMatrix<double>& H_;        // the plan's pattern, its values set at every step
-  const std::vector<int>& slots_;          // the plan's: per face, where its 36 entries go in H_
-  detail::NewtonFactor& llt_;              // the plan's, analysed for H_'s pattern
+  numeric::FaceHessian& H_;                // the plan's: its values set at every step
 };
 
 // The reference triangle of face f: m's own shape, scaled to area a.
@@ -615,7 +548,7 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
     for (int f = 0; f < m.num_faces(); ++f) faces[f] = reference(m, f, t[f] * scale);
   };
   set_references();
-  const int n = plan.n;
+  const int n = plan.hessian.size();
   FaceNewton<Geometry> newton(faces, plan, geometry);
   for (double theta : thetas) {
     if (out.converged || out.iterations >= opt.max_iterations || n == 0) break;
@@ -679,8 +612,8 @@ bool every_face(const mesh::TriMesh& m, const Test& test) {
 std::shared_ptr<RefinementPlan> plan_for(const mesh::TriMesh& m, const std::vector<char>& free,
                                          std::shared_ptr<RefinementPlan> plan) {
   if (!plan) return plan_refinement(m.F, free);
-  bool same = plan->dof.size() == free.size() && plan->faces.rows() == m.F.rows() && plan->faces == m.F;
-  for (size_t v = 0; same && v < free.size(); ++v) same = plan->dof[v].count == free[v];
+  bool same = plan->hessian.dof().size() == free.size() && plan->faces.rows() == m.F.rows() && plan->faces == m.F;
+  for (size_t v = 0; same && v < free.size(); ++v) same = plan->hessian.dof()[v].count == free[v];
   BRENIER_CHECK(same, "the area refinement's plan was made for another mesh or other held vertices");
   return plan;
 }

@@ -10,6 +10,7 @@
 #include <algorithm>
 
 #include "common/error.hpp"
+#include "mesh/topology.hpp"
 
 namespace brenier::registration {
 
@@ -53,6 +54,30 @@ DomainLocator::DomainLocator(const mesh::Faces& F, const mesh::Vertices& domain,
   tree_->tree.insert(tree_->tris.cbegin(), tree_->tris.cend());
   tree_->tree.build();
   tree_->tree.accelerate_distance_queries();
+  if (!sphere) neighbors_ = mesh::face_neighbors(F);
+}
+
+bool DomainLocator::walk(int from, double x, double y, SurfacePoint& out) const {
+  constexpr int kLongest = 64;
+  int f = from;
+  for (int step = 0; step < kLongest && f >= 0 && !sphere_; ++step) {
+    const double ax = domain_(F_(f, 0), 0), ay = domain_(F_(f, 0), 1);
+    const double bx = domain_(F_(f, 1), 0) - ax, by = domain_(F_(f, 1), 1) - ay;
+    const double cx = domain_(F_(f, 2), 0) - ax, cy = domain_(F_(f, 2), 1) - ay;
+    const double det = bx * cy - by * cx;
+    if (det == 0) return false;
+    // (w1, w2) = D^-1 (p - a), D = [b - a, c - a]
+    const double px = x - ax, py = y - ay;
+    const double w1 = (cy * px - cx * py) / det, w2 = (bx * py - by * px) / det;
+    const Eigen::Vector3d bary(1 - (w1 + w2), w1, w2);
+    Eigen::Index k;
+    if (bary.minCoeff(&k) >= 0) {
+      out = {f, bary};
+      return true;
+    }
+    f = neighbors_[static_cast<size_t>(f)][static_cast<size_t>(k)];
+  }
+  return false;
 }
 
 DomainLocator::~DomainLocator() = default;

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <array>
 #include <memory>
 #include <vector>
 
@@ -32,12 +33,19 @@ class DomainLocator {
   DomainLocator& operator=(const DomainLocator&) = delete;
   std::vector<SurfacePoint> operator()(const mesh::Vertices& points) const;
 
+  /// On the plane: the triangle holding (x, y) and its barycentric coordinates, found by
+  /// walking from face `from` across the edge beyond which the point lies (a few faces for a
+  /// point that moved a little; no tree query). False where the walk leaves the mesh or
+  /// takes more than 64 faces: then ask operator().
+  bool walk(int from, double x, double y, SurfacePoint& out) const;
+
  private:
   struct Tree;
   const mesh::Faces& F_;
   const mesh::Vertices& domain_;
   bool sphere_;
   std::unique_ptr<Tree> tree_;
+  std::vector<std::array<int, 3>> neighbors_;  // the plane's faces across each corner's edge
 };
 
 /// The positions of surface points on a mesh: sum_i bary_i V[F(face, i)].

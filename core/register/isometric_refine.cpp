@@ -2,16 +2,16 @@
 // as-rigid-as-possible energy of f = phi2^-1 o g o phi1, with a barrier on each face's area.
 #include "register/isometric_refine.hpp"
 
-#include <Eigen/CholmodSupport>
 #include <Eigen/Dense>
 #include <Eigen/Sparse>
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 
 #include "common/error.hpp"
-#include "common/parallel.hpp"
 #include "mesh/topology.hpp"
+#include "numeric/face_hessian.hpp"
 #include "register/correspondence.hpp"
 
 namespace brenier::registration {
@@ -59,11 +59,11 @@ struct Face {
 };
 
 // Where each source vertex lands on the target: the point, the Jacobian of the chart's
-// inverse on the target face that holds it, and that face.
+// inverse on the target face that holds it, and that face with the barycentric coordinates.
 struct Places {
   std::vector<Eigen::Vector3d> p;
   std::vector<Mat32> J;
-  std::vector<int> face;
+  std::vector<SurfacePoint> at;  // the target face and barycentric coordinates
 };
 
 // A face's share of the step's model: the rows of its Gauss-Newton Hessian and gradient for
@@ -124,18 +124,15 @@ class Refiner {
       if (v < 0 || v >= n) invalid("a fixed vertex is not a vertex of the source");
       kind_[static_cast<size_t>(v)] = 0;
     }
-    first_.assign(static_cast<size_t>(n), -1);
-    for (int v = 0; v < n; ++v)
-      if (kind_[static_cast<size_t>(v)] > 0) {
-        first_[static_cast<size_t>(v)] = dofs_;
-        dofs_ += kind_[static_cast<size_t>(v)];
-      }
+    mesh::Faces kept(static_cast<Eigen::Index>(faces_.size()), 3);
+    for (size_t f = 0; f < faces_.size(); ++f) kept.row(static_cast<Eigen::Index>(f)) << faces_[f].v[0], faces_[f].v[1], faces_[f].v[2];
+    hessian_ = std::make_unique<numeric::FaceHessian>(kept, kind_);
   }
 
   IsometricRefineResult run(const IsometricRefineOptions& o) {
     IsometricRefineResult out;
     out.mapped = U_;
-    if (dofs_ == 0 || faces_.empty()) {
+    if (hessian_->size() == 0 || faces_.empty()) {
       out.converged = true;
       return out;
     }
@@ -172,25 +169,26 @@ class Refiner {
     out.converged = small >= kSmallSteps;
     out.energy_after = e;
     out.mapped = U_;
+    out.located = std::move(at.at);
     return out;
   }
 
  private:
-  // Each vertex of U on the target: first in the target face that held it at the last
-  // accepted place (most vertices stay in theirs from one step to the next), by the search
-  // tree where it left it.
+  // Each vertex of U on the target: by a walk from the target face that held it at the last
+  // accepted place (most vertices stay in theirs from one step to the next, the rest move a
+  // face or two), by the search tree where the walk fails. At 33K vertices the tree's queries
+  // took a fifth of the refinement (bench/RESULTS.md, session 66).
   Places place(const mesh::Vertices& U) const {
     std::vector<SurfacePoint> at(static_cast<size_t>(U.rows()));
-    std::vector<Eigen::Index> lost;
+    std::vector<char> walked(at.size(), 0);
+#pragma omp parallel for schedule(static)
     for (Eigen::Index v = 0; v < U.rows(); ++v) {
       const int f = hint_.empty() ? -1 : hint_[static_cast<size_t>(v)];
-      Eigen::Vector3d bary;
-      if (f >= 0 && inside(f, xy(U, static_cast<int>(v)), bary)) {
-        at[static_cast<size_t>(v)] = {f, bary};
-        continue;
-      }
-      lost.push_back(v);
+      walked[static_cast<size_t>(v)] = f >= 0 && locator_.walk(f, U(v, 0), U(v, 1), at[static_cast<size_t>(v)]);
     }
+    std::vector<Eigen::Index> lost;
+    for (Eigen::Index v = 0; v < U.rows(); ++v)
+      if (!walked[static_cast<size_t>(v)]) lost.push_back(v);
     if (!lost.empty()) {
       mesh::Vertices Q(static_cast<Eigen::Index>(lost.size()), 3);
       for (size_t i = 0; i < lost.size(); ++i) Q.row(static_cast<Eigen::Index>(i)) = U.row(lost[i]);
@@ -200,34 +198,22 @@ class Refiner {
     Places out;
     out.p.resize(at.size());
     out.J.resize(at.size());
-    out.face.resize(at.size());
     for (size_t v = 0; v < at.size(); ++v) {
       const SurfacePoint& s = at[v];
       out.p[v] = s.bary[0] * target_.V.row(target_.F(s.face, 0)).transpose() +
                  s.bary[1] * target_.V.row(target_.F(s.face, 1)).transpose() +
                  s.bary[2] * target_.V.row(target_.F(s.face, 2)).transpose();
       out.J[v] = chart_J_[static_cast<size_t>(s.face)];
-      out.face[v] = s.face;
     }
+    out.at = std::move(at);
     return out;
-  }
-
-  // Whether chart point x lies in target face f (its barycentric coordinates then in `bary`).
-  bool inside(int f, const Vec2& x, Eigen::Vector3d& bary) const {
-    const Vec2 a = xy(target_domain_, target_.F(f, 0));
-    Mat2 D;
-    D << xy(target_domain_, target_.F(f, 1)) - a, xy(target_domain_, target_.F(f, 2)) - a;
-    if (D.determinant() == 0) return false;
-    const Vec2 w = D.inverse() * (x - a);
-    if (!(w.minCoeff() >= 0 && w.sum() <= 1)) return false;
-    bary = Eigen::Vector3d(1 - w.sum(), w.x(), w.y());
-    return true;
   }
 
   // A new accepted place: its target faces start the next search, and its area factors
   // serve the barrier until the next one.
   void accept(const Places& at) {
-    hint_ = at.face;
+    hint_.resize(at.at.size());
+    for (size_t v = 0; v < at.at.size(); ++v) hint_[v] = at.at[v].face;
     read_area_factors();
   }
 
@@ -243,26 +229,28 @@ class Refiner {
   // itself drifted off the identity.
   void read_area_factors() {
     rho_.resize(faces_.size());
-    std::vector<size_t> lost;
-    mesh::Vertices centroids(static_cast<Eigen::Index>(faces_.size()), 3);
-    for (size_t f = 0; f < faces_.size(); ++f) {
+    std::vector<char> walked(faces_.size(), 0);
+#pragma omp parallel for schedule(static)
+    for (size_t f = 0; f < faces_.size(); ++f) {  // from the first corner's target face
       const Face& F = faces_[f];
       const Vec2 c = (xy(U_, F.v[0]) + xy(U_, F.v[1]) + xy(U_, F.v[2])) / 3;
-      int under = -1;
-      Eigen::Vector3d bary;
-      for (int k = 0; k < 3 && under < 0; ++k) {  // most centroids lie in a corner's target face
-        const int t = hint_[static_cast<size_t>(F.v[k])];
-        if (inside(t, c, bary)) under = t;
-      }
-      if (under >= 0) {
-        rho_[f] = area_factor(under);
-      } else {
-        lost.push_back(f);
-        centroids.row(static_cast<Eigen::Index>(lost.size() - 1)) << c.x(), c.y(), 0;
+      SurfacePoint under;
+      if (locator_.walk(hint_[static_cast<size_t>(F.v[0])], c.x(), c.y(), under)) {
+        rho_[f] = area_factor(under.face);
+        walked[f] = 1;
       }
     }
+    std::vector<size_t> lost;
+    for (size_t f = 0; f < faces_.size(); ++f)
+      if (!walked[f]) lost.push_back(f);
     if (lost.empty()) return;
-    const std::vector<SurfacePoint> found = locator_(centroids.topRows(static_cast<Eigen::Index>(lost.size())));
+    mesh::Vertices centroids(static_cast<Eigen::Index>(lost.size()), 3);
+    for (size_t i = 0; i < lost.size(); ++i) {
+      const Face& F = faces_[lost[i]];
+      const Vec2 c = (xy(U_, F.v[0]) + xy(U_, F.v[1]) + xy(U_, F.v[2])) / 3;
+      centroids.row(static_cast<Eigen::Index>(i)) << c.x(), c.y(), 0;
+    }
+    const std::vector<SurfacePoint> found = locator_(centroids);
     for (size_t i = 0; i < lost.size(); ++i) rho_[lost[i]] = area_factor(found[i].face);
   }
 
@@ -376,59 +364,41 @@ class Refiner {
   }
 
   // The model's minimizer: U + d, boundary vertices moved along their tangent and put back on
-  // the circle, landmarks held.
+  // the circle, landmarks held. The faces' models go into the Hessian's fixed pattern
+  // (numeric/face_hessian.hpp), each block in its corners' unknowns B_j^T M_jk B_k.
   mesh::Vertices step(const Places& at) {
-    std::vector<Eigen::Triplet<double>> entries;
-    entries.reserve(faces_.size() * 36 + static_cast<size_t>(dofs_));
-    Eigen::VectorXd rhs = Eigen::VectorXd::Zero(dofs_);
-    double diagonal = 0;
+    const std::vector<numeric::Dof>& dof = hessian_->dof();
+    Eigen::VectorXd rhs = Eigen::VectorXd::Zero(hessian_->size());
     std::vector<FaceModel> models(faces_.size());
 #pragma omp parallel for schedule(static)
     for (size_t f = 0; f < faces_.size(); ++f) models[f] = face_model(at, f);
+    hessian_->clear();
     for (size_t f = 0; f < faces_.size(); ++f) {
       const FaceModel& m = models[f];
+      Mat2 B[3];
+      for (int j = 0; j < 3; ++j) B[j] = basis(faces_[f].v[j]);
+      numeric::FaceHessian::Mat6 H;
       for (int j = 0; j < 3; ++j) {
-        const int vj = faces_[f].v[j], nj = kind_[static_cast<size_t>(vj)], rj = first_[static_cast<size_t>(vj)];
-        if (nj == 0) continue;
-        const Mat2 Bj = basis(vj);
-        rhs.segment(rj, nj) += (Bj.transpose() * m.gradient[j]).head(nj);
-        for (int k = 0; k < 3; ++k) {
-          const int vk = faces_[f].v[k], nk = kind_[static_cast<size_t>(vk)], rk = first_[static_cast<size_t>(vk)];
-          if (nk == 0) continue;
-          const Mat2 block = Bj.transpose() * m.block[j][k] * basis(vk);
-          for (int r = 0; r < nj; ++r)
-            for (int c = 0; c < nk; ++c) {
-              entries.emplace_back(rj + r, rk + c, block(r, c));
-              if (rj + r == rk + c) diagonal += block(r, c);
-            }
-        }
+        const numeric::Dof& d = dof[static_cast<size_t>(faces_[f].v[j])];
+        const Vec2 g = B[j].transpose() * m.gradient[j];
+        for (int a = 0; a < d.count; ++a) rhs[d.offset + a] += g[a];
+        for (int k = 0; k < 3; ++k) H.block<2, 2>(2 * j, 2 * k) = B[j].transpose() * m.block[j][k] * B[k];
       }
+      hessian_->add(static_cast<Eigen::Index>(f), H);
     }
     // A Levenberg-Marquardt shift of 1e-6 of the mean diagonal: a vertex on a target face the
     // chart flattens has no Jacobian and would leave the system singular.
-    const double shift = 1e-6 * diagonal / dofs_;
-    for (int r = 0; r < dofs_; ++r) entries.emplace_back(r, r, shift);
-    Eigen::SparseMatrix<double> H(dofs_, dofs_);
-    H.setFromTriplets(entries.begin(), entries.end());
-    if (!analyzed_) {
-      // As the area refinement's (omt/area_refinement.cpp): OpenBLAS on this thread, the
-      // pattern analysed once with nested dissection, each factorization's library loops inline.
-      single_threaded_blas();
-      llt_.cholmod().print = 0;
-      llt_.cholmod().nmethods = 1;
-      llt_.cholmod().method[0].ordering = CHOLMOD_NESDIS;
-      llt_.analyzePattern(H);
-      analyzed_ = true;
-    }
-    with_library_loops_serial([&] { llt_.factorize(H); });
-    if (llt_.info() != Eigen::Success) fail(ErrorCode::kInternal, "the isometric refinement's system is not positive definite");
-    const Eigen::VectorXd z = llt_.solve(rhs);
+    Eigen::SparseMatrix<double>& M = hessian_->matrix();
+    const double shift = 1e-6 * M.diagonal().sum() / hessian_->size();
+    for (int r = 0; r < hessian_->size(); ++r) M.coeffRef(r, r) += shift;
+    if (!hessian_->factorize()) fail(ErrorCode::kInternal, "the isometric refinement's system is not positive definite");
+    const Eigen::VectorXd z = hessian_->solve(rhs);
     mesh::Vertices next = U_;
     for (int v = 0; v < U_.rows(); ++v) {
-      const int k = kind_[static_cast<size_t>(v)];
-      if (k == 0) continue;
+      const numeric::Dof& d = dof[static_cast<size_t>(v)];
+      if (d.count == 0) continue;
       Vec2 dz = Vec2::Zero();
-      dz.head(k) = z.segment(first_[static_cast<size_t>(v)], k);
+      dz.head(d.count) = z.segment(d.offset, d.count);
       const Vec2 u = xy(U_, v) + basis(v) * dz;
       next(v, 0) = u.x();
       next(v, 1) = u.y();
@@ -463,10 +433,8 @@ class Refiner {
   std::vector<Face> faces_;
   std::vector<char> checked_;  // the face's image was the right way round at the start
   std::vector<double> rho_;    // per face, the chart inverse's area factor at the accepted place
-  std::vector<int> kind_, first_;
-  int dofs_ = 0;
-  Eigen::CholmodSupernodalLLT<Eigen::SparseMatrix<double>> llt_;
-  bool analyzed_ = false;
+  std::vector<char> kind_;  // per vertex, its unknowns: 0 held, 1 on the circle, 2 free
+  std::unique_ptr<numeric::FaceHessian> hessian_;  // over faces_' corners, made in the constructor
 };
 
 }  // namespace

@@ -37,6 +37,9 @@ struct IsometricRefineOptions {
 
 struct IsometricRefineResult {
   mesh::Vertices mapped;  // the refined g of every source vertex (z = 0 on the disk)
+  /// Where each row of `mapped` lies in the target's domain mesh (locate()'s answer, found on
+  /// the way), so that the caller need not search again.
+  std::vector<mesh::SurfacePoint> located;
   int iterations = 0;         // steps taken
   double energy_before = 0;  // the energy (area-weighted mean per face) at g
   double energy_after = 0;

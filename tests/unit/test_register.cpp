@@ -272,6 +272,36 @@ TEST(Correspondence, LocatesPointsInThePlaneAndOnTheSphere) {
   }
 }
 
+// The walk finds the triangle the tree finds, from any start face, for points spread over the
+// disk; a point outside the disk's polygon is left to the tree (the walk reaches the boundary).
+TEST(Correspondence, TheWalkFromAnyFaceFindsTheTrianglesTheTreeFinds) {
+  const mesh::TriMesh d = mesh::make_disk(12);
+  const DomainLocator locator(d.F, d.V, false);
+  mesh::Vertices P(200, 3);
+  for (int i = 0; i < 200; ++i) {
+    const double r = 0.98 * std::sqrt((i + 0.5) / 200), t = i * 2.399963;
+    P.row(i) << r * std::cos(t), r * std::sin(t), 0;
+  }
+  const std::vector<SurfacePoint> tree = locator(P);
+  int far_walks = 0;
+  for (int i = 0; i < 200; ++i) {
+    const int from = (i * 37) % d.num_faces();
+    SurfacePoint w;
+    if (!locator.walk(from, P(i, 0), P(i, 1), w)) continue;  // more than 64 faces away
+    ++far_walks;
+    EXPECT_GE(w.bary.minCoeff(), 0);
+    EXPECT_NEAR(w.bary.sum(), 1, 1e-12);
+    EXPECT_LT((positions(d, {w}).row(0) - P.row(i)).norm(), 1e-12) << i;
+    EXPECT_LT((positions(d, {tree[static_cast<size_t>(i)]}).row(0) - P.row(i)).norm(), 1e-12) << i;
+  }
+  EXPECT_GT(far_walks, 100);  // most walks across a 12-ring disk end within 64 faces
+  // From the face holding it, the walk ends at once; outside the disk it fails.
+  SurfacePoint w;
+  EXPECT_TRUE(locator.walk(tree[0].face, P(0, 0), P(0, 1), w));
+  EXPECT_EQ(w.face, tree[0].face);
+  EXPECT_FALSE(locator.walk(tree[0].face, 1.5, 0.2, w));
+}
+
 // chart_flipped_faces: a correspondence placed exactly (every vertex on itself) turns nothing
 // over in any orientation-preserving chart nor in a mirrored one; two neighbours swapped turn
 // over faces on the plane and on the sphere.
@@ -340,6 +370,15 @@ TEST(IsometricRefine, AWarpedMapOfAnEllipseReturnsToTheIsometryThroughTheTargets
   for (int v = 0; v < source.num_vertices(); ++v) {
     if (!boundary[static_cast<size_t>(v)]) continue;
     EXPECT_NEAR(std::hypot(r.mapped(v, 0), r.mapped(v, 1)), 1.0, 1e-12) << v;
+  }
+  // The places it hands back are locate()'s: inside the chart's polygon the points themselves,
+  // outside it (on the circle, between two boundary vertices) the polygon's nearest point.
+  ASSERT_EQ(r.located.size(), static_cast<size_t>(r.mapped.rows()));
+  const mesh::Vertices found = positions(chart, r.located);
+  EXPECT_LT((found - positions(chart, locate(chart.F, chart.V, r.mapped, false))).rowwise().norm().maxCoeff(), 1e-12);
+  for (int v = 0; v < source.num_vertices(); ++v) {
+    if (boundary[static_cast<size_t>(v)]) continue;
+    EXPECT_LT((found.row(v) - r.mapped.row(v)).norm(), 1e-12) << v;
   }
   // A caller's cancel stops it between steps.
   IsometricRefineOptions cancel;

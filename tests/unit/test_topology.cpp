@@ -55,6 +55,34 @@ TEST(Topology, TorusAndAnnulus) {
   EXPECT_EQ(annulus.mesh_class, MeshClass::kOther);
 }
 
+// Across the edge opposite corner k lies a face that holds that edge's two vertices and not
+// the corner; the relation is mutual; exactly the boundary's edges have none.
+TEST(Topology, FaceNeighborsShareTheEdgeOppositeEachCorner) {
+  for (const TriMesh& m : {make_disk(5), make_icosphere(2)}) {
+    const auto n = face_neighbors(m.F);
+    int open = 0;
+    for (int f = 0; f < m.num_faces(); ++f)
+      for (int k = 0; k < 3; ++k) {
+        const int g = n[f][k];
+        if (g < 0) {
+          ++open;
+          continue;
+        }
+        const int a = m.F(f, (k + 1) % 3), b = m.F(f, (k + 2) % 3), c = m.F(f, k);
+        int shared = 0;
+        for (int j = 0; j < 3; ++j) {
+          shared += m.F(g, j) == a || m.F(g, j) == b;
+          EXPECT_NE(m.F(g, j), c);
+        }
+        EXPECT_EQ(shared, 2);
+        int back = 0;
+        for (int j = 0; j < 3; ++j) back += n[g][j] == f;
+        EXPECT_EQ(back, 1);
+      }
+    EXPECT_EQ(open, compute_topology(m).boundary_loops ? static_cast<int>(boundary_loops(m)[0].size()) : 0);
+  }
+}
+
 TEST(Topology, BoundaryLoopFollowsTheFaces) {
   TriMesh m = make_disk(3);
   auto loops = boundary_loops(m);
