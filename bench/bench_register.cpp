@@ -29,6 +29,7 @@
 #include "register/correspondence.hpp"
 #include "register/domain_match.hpp"
 #include "register/evaluation.hpp"
+#include "process.hpp"
 
 using namespace brenier;
 using registration::Deformation;
@@ -230,6 +231,8 @@ int time_one(const std::string& path, int subdivide) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  process::reexec_with_runtime_settings(argv);  // as the tools run (passive OpenMP waits, BLAS kernels)
+  process::tune_allocator();
   if (argc < 3) {
     std::fprintf(stderr, "usage: bench_register eval [--samples N] [--landmarks K] [--euclidean] [--no-isometric] MESH... | time MESH [--subdivide S]\n");
     return 2;

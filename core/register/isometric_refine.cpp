@@ -77,7 +77,7 @@ class Refiner {
  public:
   Refiner(const mesh::TriMesh& source, const mesh::Vertices& mapped, const mesh::TriMesh& target,
           const mesh::Vertices& target_domain, const std::vector<int>& fixed)
-      : target_(target), target_domain_(target_domain), locator_(target.F, target_domain, false), U_(mapped) {
+      : target_(target), locator_(target.F, target_domain, false), U_(mapped) {
     // The chart's inverse on each target face: J = T D^-1 (T its 3-D edges, D its domain
     // edges); zero on a face the chart flattens to a segment.
     chart_J_.assign(static_cast<size_t>(target.num_faces()), Mat32::Zero());
@@ -424,7 +424,6 @@ class Refiner {
   }
 
   const mesh::TriMesh& target_;
-  const mesh::Vertices& target_domain_;
   DomainLocator locator_;
   std::vector<Mat32> chart_J_;  // per target face, the Jacobian of the chart's inverse
   mesh::Vertices U_;            // the accepted place
