@@ -258,20 +258,8 @@ DensityCap cap_density(const mesh::Faces& F, const mesh::Vertices& X, const Eige
   for (int f = 0; f < nf; ++f)
     if (room(f) < 0) heavy.push_back(f);
   if (heavy.empty() || !(cap > 0)) return out;
-  // across[f][k]: the face across edge (F(f, k), F(f, k + 1)), from the sorted edge uses.
-  std::vector<std::array<int, 3>> across(nf, {-1, -1, -1});
-  auto slot = [&](int f, int a, int b) {
-    for (int k = 0; k < 3; ++k)
-      if (std::minmax(F(f, k), F(f, (k + 1) % 3)) == std::minmax(a, b)) return k;
-    return 0;
-  };
-  const std::vector<mesh::EdgeUse> uses = mesh::sorted_edge_uses(F);
-  for (size_t k = 0; k + 1 < uses.size(); ++k)
-    if (uses[k].a == uses[k + 1].a && uses[k].b == uses[k + 1].b) {
-      const int f = uses[k].face, g = uses[k + 1].face;
-      across[f][slot(f, uses[k].a, uses[k].b)] = g;
-      across[g][slot(g, uses[k].a, uses[k].b)] = f;
-    }
+  // across[f][k]: the face across edge (F(f, k), F(f, k + 1)).
+  const std::vector<std::array<int, 3>> across = mesh::face_neighbors(F);
   std::vector<int> seen(nf, -1);  // the set (its first face) that visited the face
   double total = mass.sum();
   for (int h0 : heavy) {

@@ -48,17 +48,17 @@ std::vector<EdgeUse> sorted_edge_uses(const Faces& F) {
 std::vector<std::array<int, 3>> face_neighbors(const Faces& F) {
   std::vector<std::array<int, 3>> out(static_cast<size_t>(F.rows()), {-1, -1, -1});
   const std::vector<EdgeUse> h = sorted_edge_uses(F);
-  auto opposite = [&F](const EdgeUse& e) {  // face e.face's corner off edge (a, b)
+  auto slot = [&F](const EdgeUse& e) {  // k with (F(f, k), F(f, k + 1)) the edge (a, b)
     int k = 0;
-    while (k < 2 && (F(e.face, k) == e.a || F(e.face, k) == e.b)) ++k;
+    while (k < 2 && std::minmax(F(e.face, k), F(e.face, (k + 1) % 3)) != std::minmax(e.a, e.b)) ++k;
     return k;
   };
   for (size_t i = 0; i < h.size();) {
     size_t j = i;
     while (j < h.size() && h[j].a == h[i].a && h[j].b == h[i].b) ++j;
     if (j - i == 2) {
-      out[static_cast<size_t>(h[i].face)][static_cast<size_t>(opposite(h[i]))] = h[i + 1].face;
-      out[static_cast<size_t>(h[i + 1].face)][static_cast<size_t>(opposite(h[i + 1]))] = h[i].face;
+      out[static_cast<size_t>(h[i].face)][static_cast<size_t>(slot(h[i]))] = h[i + 1].face;
+      out[static_cast<size_t>(h[i + 1].face)][static_cast<size_t>(slot(h[i + 1]))] = h[i].face;
     }
     i = j;
   }

@@ -44,8 +44,8 @@ struct EdgeUse {
 /// uses by insertion sort -- linear in practice. Indices must be >= 0.
 std::vector<EdgeUse> sorted_edge_uses(const Faces& F);
 
-/// Per face f and corner k, the face across the edge opposite corner k: -1 on the boundary and
-/// where more than two faces share the edge.
+/// Per face f and k, the face across its edge (F(f, k), F(f, k + 1)) (the edge opposite corner
+/// k + 2): -1 on the boundary and where more than two faces share the edge.
 std::vector<std::array<int, 3>> face_neighbors(const Faces& F);
 
 /// Boundary loops as vertex cycles, each traversed in the direction of its faces' winding

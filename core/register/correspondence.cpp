@@ -75,7 +75,7 @@ bool DomainLocator::walk(int from, double x, double y, SurfacePoint& out) const 
       out = {f, bary};
       return true;
     }
-    f = neighbors_[static_cast<size_t>(f)][static_cast<size_t>(k)];
+    f = neighbors_[static_cast<size_t>(f)][static_cast<size_t>((k + 1) % 3)];  // across the edge opposite corner k
   }
   return false;
 }

@@ -45,7 +45,7 @@ class DomainLocator {
   const mesh::Vertices& domain_;
   bool sphere_;
   std::unique_ptr<Tree> tree_;
-  std::vector<std::array<int, 3>> neighbors_;  // the plane's faces across each corner's edge
+  std::vector<std::array<int, 3>> neighbors_;  // the plane's faces across each edge (mesh::face_neighbors)
 };
 
 /// The positions of surface points on a mesh: sum_i bary_i V[F(face, i)].

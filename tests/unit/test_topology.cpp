@@ -55,8 +55,8 @@ TEST(Topology, TorusAndAnnulus) {
   EXPECT_EQ(annulus.mesh_class, MeshClass::kOther);
 }
 
-// Across the edge opposite corner k lies a face that holds that edge's two vertices and not
-// the corner; the relation is mutual; exactly the boundary's edges have none.
+// Across edge (F(f, k), F(f, k + 1)) lies a face that holds that edge's two vertices and not
+// the face's third corner; the relation is mutual; exactly the boundary's edges have none.
 TEST(Topology, FaceNeighborsShareTheEdgeOppositeEachCorner) {
   for (const TriMesh& m : {make_disk(5), make_icosphere(2)}) {
     const auto n = face_neighbors(m.F);
@@ -68,7 +68,7 @@ TEST(Topology, FaceNeighborsShareTheEdgeOppositeEachCorner) {
           ++open;
           continue;
         }
-        const int a = m.F(f, (k + 1) % 3), b = m.F(f, (k + 2) % 3), c = m.F(f, k);
+        const int a = m.F(f, k), b = m.F(f, (k + 1) % 3), c = m.F(f, (k + 2) % 3);
         int shared = 0;
         for (int j = 0; j < 3; ++j) {
           shared += m.F(g, j) == a || m.F(g, j) == b;
