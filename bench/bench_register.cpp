@@ -7,6 +7,10 @@
 //     normalized geodesic error, the domain folds and flipped morph faces, and the cumulative
 //     error curves (share of points within 0, 0.01, ..., 0.25), Kim et al. 2011 style.
 //     --euclidean: straight-line errors at every vertex instead (quick sweeps).
+//     --no-isometric: g without the isometric refinement; --isometric-sphere: with it on the
+//     sphere too; --deform NAME: one deformation only; --from-truth: refine the true
+//     correspondence itself instead of registering, and print its energy and error before and
+//     after (does the energy's minimum lie at the truth?).
 //   bench_register consistency MESH
 //     How far the two maps of a pair disagree in the domain after the best turn.
 //   bench_register time MESH [--subdivide S]
@@ -29,6 +33,7 @@
 #include "register/correspondence.hpp"
 #include "register/domain_match.hpp"
 #include "register/evaluation.hpp"
+#include "register/isometric_refine.hpp"
 #include "process.hpp"
 
 using namespace brenier;
@@ -53,6 +58,12 @@ struct Route {
 bool g_euclidean = false;
 bool g_no_refine = false;  // consistency: the centroid maps, without the area refinement
 bool g_no_isometric = false;  // eval: g as Alg. 7 makes it, without the isometric refinement
+bool g_isometric_sphere = false;  // eval: the isometric refinement on the sphere too
+// eval --from-truth: instead of registering, refine the true correspondence itself (read in the
+// target's conformal chart) and print its energy and error before and after: whether the
+// refinement's energy has its minimum at the truth, apart from where it starts.
+bool g_from_truth = false;
+std::string g_deformation;  // eval --deform NAME: that deformation only
 
 jobs::RegisterRequest request_for(const registration::TruthPair& p, jobs::Domain domain, bool cut, jobs::MapMethod m) {
   jobs::RegisterRequest r;
@@ -62,6 +73,7 @@ jobs::RegisterRequest request_for(const registration::TruthPair& p, jobs::Domain
   r.source_landmarks = p.source_landmarks;
   r.target_landmarks = p.target_landmarks;
   r.isometric = !g_no_isometric;
+  r.isometric_sphere = g_isometric_sphere;
   return r;
 }
 
@@ -95,6 +107,7 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
     const mesh::Topology t = mesh::compute_topology(cm.mesh);
     const bool sphere = t.mesh_class == mesh::MeshClass::kSphere;
     for (const auto& [d, amount] : deformations) {
+      if (!g_deformation.empty() && g_deformation != registration::deformation_name(d)) continue;
       const registration::TruthPair p = registration::make_truth_pair(cm.mesh, d, amount, 1.0, landmarks);
       const mesh::CleanMesh a = mesh::clean(p.source), b = mesh::clean(p.target);
       std::vector<int> truth_faces;
@@ -109,6 +122,18 @@ int eval(const std::vector<std::string>& meshes, int samples, int landmarks) {
         return registration::chart_flipped_faces(p.source.F, points, p.target.F, chart.positions, sphere);
       };
       const int truth_chart_flips = chart_flips(p.truth);
+      if (g_from_truth) {  // the refinement from the truth itself, in the target's chart
+        mesh::TriMesh charted{chart.positions, p.target.F};
+        mesh::Vertices start = registration::positions(charted, p.truth);
+        if (sphere) start.rowwise().normalize();
+        const registration::IsometricRefineResult ir =
+            registration::refine_isometric(p.source, start, p.target, chart.positions, p.source_landmarks, sphere);
+        const std::vector<double> e0 = registration::registration_errors(p, registration::locate(p.target.F, chart.positions, start, sphere), samples);
+        const std::vector<double> e1 = registration::registration_errors(p, ir.located, samples);
+        std::printf("from truth %s: median %.4f -> %.4f, energy %.4f -> %.4f, %d steps\n", registration::deformation_name(d),
+                    quantile(e0, 0.5), quantile(e1, 0.5), ir.energy_before, ir.energy_after, ir.iterations);
+        continue;
+      }
       for (Route& route : routes) {
         const auto t0 = std::chrono::steady_clock::now();
         try {
@@ -234,7 +259,7 @@ int main(int argc, char** argv) {
   process::reexec_with_runtime_settings(argv);  // as the tools run (passive OpenMP waits, BLAS kernels)
   process::tune_allocator();
   if (argc < 3) {
-    std::fprintf(stderr, "usage: bench_register eval [--samples N] [--landmarks K] [--euclidean] [--no-isometric] MESH... | time MESH [--subdivide S]\n");
+    std::fprintf(stderr, "usage: bench_register eval [--samples N] [--landmarks K] [--euclidean] [--no-isometric] [--isometric-sphere] [--from-truth] [--deform NAME] MESH... | time MESH [--subdivide S]\n");
     return 2;
   }
   const std::string mode = argv[1];
@@ -248,6 +273,9 @@ int main(int argc, char** argv) {
     else if (a == "--euclidean") g_euclidean = true;
     else if (a == "--no-refine") g_no_refine = true;
     else if (a == "--no-isometric") g_no_isometric = true;
+    else if (a == "--isometric-sphere") g_isometric_sphere = true;
+    else if (a == "--from-truth") g_from_truth = true;
+    else if (a == "--deform" && i + 1 < argc) g_deformation = argv[++i];
     else meshes.push_back(a);
   }
   try {

@@ -150,6 +150,7 @@ void to_proto(const jobs::RegisterRequest& r, pb::RegisterSpec* s) {
   s->set_tolerance(r.tolerance);
   s->set_max_iterations(r.max_iterations);
   s->set_harmonic_only(!r.isometric);
+  s->set_isometric_sphere(r.isometric_sphere);
 }
 
 jobs::RegisterRequest from_proto(const pb::RegisterSpec& s) {
@@ -163,6 +164,7 @@ jobs::RegisterRequest from_proto(const pb::RegisterSpec& s) {
   r.tolerance = s.tolerance();
   if (s.max_iterations() != 0) r.max_iterations = s.max_iterations();
   r.isometric = !s.harmonic_only();
+  r.isometric_sphere = s.isometric_sphere();
   r.validate();
   return r;
 }

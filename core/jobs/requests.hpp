@@ -99,9 +99,12 @@ struct RegisterRequest {
   std::vector<int> source_landmarks, target_landmarks;
   double tolerance = 0;  // the maps' tolerance (0: their default)
   int max_iterations = 200;
-  /// Disk: after g, move the source's domain points toward an isometry of the two surfaces
-  /// (registration/isometric_refine.hpp), landmarks held, no face turned over.
+  /// After g, move the source's domain points toward an isometry of the two surfaces
+  /// (registration/isometric_refine.hpp), landmarks held, no face turned over: on the disk
+  /// unless `isometric` is off, on the sphere only with `isometric_sphere` too (there it
+  /// helped cow's pairs and set camel's back; bench/RESULTS.md, session 67).
   bool isometric = true;
+  bool isometric_sphere = false;
 
   static constexpr size_t kMaxLandmarks = 1000;  // each matching step solves a dense (L+3)^2 system
   void validate() const;

@@ -54,21 +54,32 @@ DomainLocator::DomainLocator(const mesh::Faces& F, const mesh::Vertices& domain,
   tree_->tree.insert(tree_->tris.cbegin(), tree_->tris.cend());
   tree_->tree.build();
   tree_->tree.accelerate_distance_queries();
-  if (!sphere) neighbors_ = mesh::face_neighbors(F);
+  neighbors_ = mesh::face_neighbors(F);
 }
 
-bool DomainLocator::walk(int from, double x, double y, SurfacePoint& out) const {
+bool DomainLocator::walk(int from, const Eigen::Vector3d& x, SurfacePoint& out) const {
   constexpr int kLongest = 64;
   int f = from;
-  for (int step = 0; step < kLongest && f >= 0 && !sphere_; ++step) {
-    const double ax = domain_(F_(f, 0), 0), ay = domain_(F_(f, 0), 1);
-    const double bx = domain_(F_(f, 1), 0) - ax, by = domain_(F_(f, 1), 1) - ay;
-    const double cx = domain_(F_(f, 2), 0) - ax, cy = domain_(F_(f, 2), 1) - ay;
-    const double det = bx * cy - by * cx;
-    if (det == 0) return false;
-    // (w1, w2) = D^-1 (p - a), D = [b - a, c - a]
-    const double px = x - ax, py = y - ay;
-    const double w1 = (cy * px - cx * py) / det, w2 = (bx * py - by * px) / det;
+  for (int step = 0; step < kLongest && f >= 0; ++step) {
+    const Eigen::Vector3d a = domain_.row(F_(f, 0)).transpose();
+    const Eigen::Vector3d e1 = domain_.row(F_(f, 1)).transpose() - a, e2 = domain_.row(F_(f, 2)).transpose() - a;
+    const Eigen::Vector3d d = x - a;
+    double w1, w2;
+    if (sphere_) {
+      // The ray's coordinates: lambda_k proportional to x . (the cross product of the other two
+      // corners), which for the corners b = a + e1, c = a + e2 read d . (e2 x a) and
+      // d . (a x e1) over x . (e1 x e2), from differences so that tiny triangles keep their digits.
+      const double xn = x.dot(e1.cross(e2));
+      if (!(xn > 0)) return false;  // the ray misses the triangle's front
+      w1 = d.dot(e2.cross(a)) / xn;
+      w2 = d.dot(a.cross(e1)) / xn;
+    } else {
+      const double det = e1.x() * e2.y() - e1.y() * e2.x();
+      if (det == 0) return false;
+      // (w1, w2) = D^-1 (x - a), D = [b - a, c - a]
+      w1 = (e2.y() * d.x() - e2.x() * d.y()) / det;
+      w2 = (e1.x() * d.y() - e1.y() * d.x()) / det;
+    }
     const Eigen::Vector3d bary(1 - (w1 + w2), w1, w2);
     Eigen::Index k;
     if (bary.minCoeff(&k) >= 0) {

@@ -33,11 +33,13 @@ class DomainLocator {
   DomainLocator& operator=(const DomainLocator&) = delete;
   std::vector<SurfacePoint> operator()(const mesh::Vertices& points) const;
 
-  /// On the plane: the triangle holding (x, y) and its barycentric coordinates, found by
-  /// walking from face `from` across the edge beyond which the point lies (a few faces for a
-  /// point that moved a little; no tree query). False where the walk leaves the mesh or
-  /// takes more than 64 faces: then ask operator().
-  bool walk(int from, double x, double y, SurfacePoint& out) const;
+  /// The triangle holding x and its barycentric coordinates (on the plane, of (x, y); on the
+  /// sphere, of the point where the ray from the centre through x crosses the chord
+  /// triangle), found by walking from face `from` across the edge beyond which the point lies
+  /// (a few faces for a point that moved a little; no tree query). False where the walk
+  /// leaves the mesh, meets a triangle the ray misses or takes more than 64 faces: then ask
+  /// operator().
+  bool walk(int from, const Eigen::Vector3d& x, SurfacePoint& out) const;
 
  private:
   struct Tree;
@@ -45,7 +47,7 @@ class DomainLocator {
   const mesh::Vertices& domain_;
   bool sphere_;
   std::unique_ptr<Tree> tree_;
-  std::vector<std::array<int, 3>> neighbors_;  // the plane's faces across each edge (mesh::face_neighbors)
+  std::vector<std::array<int, 3>> neighbors_;  // the faces across each edge (mesh::face_neighbors)
 };
 
 /// The positions of surface points on a mesh: sum_i bary_i V[F(face, i)].

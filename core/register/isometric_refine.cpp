@@ -28,11 +28,34 @@ constexpr double kBarrier = 0.1;
 constexpr int kHalvings = 14;
 // Steps in a row that must each lower the energy by less than the tolerance to stop.
 constexpr int kSmallSteps = 3;
+// On the sphere, a face whose area ratio starts below this is collapsed: its barrier reads the
+// ratio scaled to start here, and charges only shrinking below that.
+constexpr double kCollapsed = 0.01;
 
 Vec2 xy(const mesh::Vertices& X, int v) { return {X(v, 0), X(v, 1)}; }
+Eigen::Vector3d xyz(const mesh::Vertices& X, int v) { return X.row(v).transpose(); }
 
 double signed_area(const mesh::Vertices& U, int a, int b, int c) {
   return (U(b, 0) - U(a, 0)) * (U(c, 1) - U(a, 1)) - (U(b, 1) - U(a, 1)) * (U(c, 0) - U(a, 0));
+}
+
+// On the sphere, a face's orientation seen from outside: det(a, b, c) = a . ((b - a) x (c - a)),
+// twice its chord triangle's area times the plane's distance from the centre (about 1 for
+// the small triangles of a map), from the edges so that a tiny face keeps its sign.
+double sphere_orientation(const mesh::Vertices& U, int a, int b, int c) {
+  const Eigen::Vector3d p = xyz(U, a);
+  return p.dot((xyz(U, b) - p).cross(xyz(U, c) - p));
+}
+
+// Two orthonormal tangents of the unit sphere at p: a vertex's unknowns on the sphere.
+Mat32 tangent_frame(const Eigen::Vector3d& p) {
+  Eigen::Index k;
+  p.cwiseAbs().minCoeff(&k);
+  const Eigen::Vector3d t1 = p.cross(Eigen::Vector3d::Unit(k)).normalized();
+  Mat32 T;
+  T.col(0) = t1;
+  T.col(1) = p.cross(t1).normalized();
+  return T;
 }
 
 // The closest matrix with orthonormal columns to J (3 x 2), the polar factor: in closed form
@@ -59,10 +82,12 @@ struct Face {
 };
 
 // Where each source vertex lands on the target: the point, the Jacobian of the chart's
-// inverse on the target face that holds it, and that face with the barycentric coordinates.
+// inverse on the target face that holds it (by the vertex's unknowns: the plane's axes, or on
+// the sphere the tangent frame), and that face with the barycentric coordinates.
 struct Places {
   std::vector<Eigen::Vector3d> p;
   std::vector<Mat32> J;
+  std::vector<Mat32> frame;  // on the sphere, each vertex's tangent frame
   std::vector<SurfacePoint> at;  // the target face and barycentric coordinates
 };
 
@@ -76,24 +101,37 @@ struct FaceModel {
 class Refiner {
  public:
   Refiner(const mesh::TriMesh& source, const mesh::Vertices& mapped, const mesh::TriMesh& target,
-          const mesh::Vertices& target_domain, const std::vector<int>& fixed)
-      : target_(target), locator_(target.F, target_domain, false), U_(mapped) {
-    // The chart's inverse on each target face: J = T D^-1 (T its 3-D edges, D its domain
-    // edges); zero on a face the chart flattens to a segment.
+          const mesh::Vertices& target_domain, const std::vector<int>& fixed, bool sphere)
+      : target_(target), domain_(target_domain), sphere_(sphere), locator_(target.F, target_domain, sphere), U_(mapped) {
+    // The chart's inverse on each target face: on the plane J = T D^-1 (T its 3-D edges, D its
+    // domain edges), zero on a face the chart flattens to a segment; on the sphere it varies
+    // over the face (sphere_jacobian) and only its area factor is kept here: the face's area
+    // over det(a, b, c) of its corners in the chart (twice its chord triangle's area times the
+    // plane's distance from the centre), so that a face mapped onto itself has ratio 1.
     chart_J_.assign(static_cast<size_t>(target.num_faces()), Mat32::Zero());
+    area_factor_.assign(static_cast<size_t>(target.num_faces()), 0.0);
     for (int f = 0; f < target.num_faces(); ++f) {
       const int a = target.F(f, 0), b = target.F(f, 1), c = target.F(f, 2);
-      Mat2 D;
-      D.col(0) = xy(target_domain, b) - xy(target_domain, a);
-      D.col(1) = xy(target_domain, c) - xy(target_domain, a);
       Mat32 T;
       T.col(0) = (target.V.row(b) - target.V.row(a)).transpose();
       T.col(1) = (target.V.row(c) - target.V.row(a)).transpose();
+      if (sphere) {  // over det(a, b, c), as the source faces' ratios read their images
+        const double det = sphere_orientation(target_domain, a, b, c);
+        const double factor = T.col(0).cross(T.col(1)).norm() / det;
+        if (det > 0 && std::isfinite(factor)) area_factor_[static_cast<size_t>(f)] = factor;
+        continue;
+      }
+      Mat2 D;
+      D.col(0) = xy(target_domain, b) - xy(target_domain, a);
+      D.col(1) = xy(target_domain, c) - xy(target_domain, a);
       const Mat32 J = T * D.inverse();
-      if (std::abs(D.determinant()) > 0 && J.allFinite()) chart_J_[static_cast<size_t>(f)] = J;
+      if (std::abs(D.determinant()) > 0 && J.allFinite()) {
+        chart_J_[static_cast<size_t>(f)] = J;
+        area_factor_[static_cast<size_t>(f)] = J.col(0).cross(J.col(1)).norm();
+      }
     }
     double orientation = 0;
-    for (int f = 0; f < source.num_faces(); ++f) orientation += signed_area(U_, source.F(f, 0), source.F(f, 1), source.F(f, 2));
+    for (int f = 0; f < source.num_faces(); ++f) orientation += orient(U_, source.F(f, 0), source.F(f, 1), source.F(f, 2));
     sign_ = orientation < 0 ? -1.0 : 1.0;
     for (int f = 0; f < source.num_faces(); ++f) {
       Face face{};
@@ -111,10 +149,11 @@ class Refiner {
       face.area = 0.5 * twice;
       area_ += face.area;
       faces_.push_back(face);
-      checked_.push_back(sign_ * signed_area(U_, face.v[0], face.v[1], face.v[2]) > 0);
+      checked_.push_back(sign_ * orient(U_, face.v[0], face.v[1], face.v[2]) > 0);
+      scale_.push_back(1.0);
     }
     // Unknowns: none for a landmark, one for a boundary vertex that slides on the circle,
-    // two for the rest.
+    // two for the rest (on the sphere, along its tangent frame).
     const int n = source.num_vertices();
     const std::vector<char> boundary = mesh::boundary_flags(source);
     kind_.assign(static_cast<size_t>(n), 2);
@@ -138,9 +177,12 @@ class Refiner {
     }
     Places at = place(U_);
     accept(at);
+    scale_collapsed();
     double e = out.energy_before = energy(U_, at);
     int small = 0;
-    while (out.iterations < o.max_iterations && small < kSmallSteps) {
+    // An energy at round-off (a mesh onto itself) has nothing left to lower.
+    constexpr double kNothing = 1e-20;
+    while (out.iterations < o.max_iterations && small < kSmallSteps && e > kNothing) {
       if (o.keep_going && !o.keep_going(out.iterations, e)) fail(ErrorCode::kCancelled, "cancelled");
       const mesh::Vertices next = step(at);
       // The longest of 1, 1/2, 1/4, ... of the step that lowers the energy (infinite on a
@@ -166,7 +208,7 @@ class Refiner {
       if (!taken) break;  // no step along the model's direction lowers the energy
       ++out.iterations;
     }
-    out.converged = small >= kSmallSteps;
+    out.converged = small >= kSmallSteps || !(e > kNothing);
     out.energy_after = e;
     out.mapped = U_;
     out.located = std::move(at.at);
@@ -184,7 +226,7 @@ class Refiner {
 #pragma omp parallel for schedule(static)
     for (Eigen::Index v = 0; v < U.rows(); ++v) {
       const int f = hint_.empty() ? -1 : hint_[static_cast<size_t>(v)];
-      walked[static_cast<size_t>(v)] = f >= 0 && locator_.walk(f, U(v, 0), U(v, 1), at[static_cast<size_t>(v)]);
+      walked[static_cast<size_t>(v)] = f >= 0 && locator_.walk(f, xyz(U, static_cast<int>(v)), at[static_cast<size_t>(v)]);
     }
     std::vector<Eigen::Index> lost;
     for (Eigen::Index v = 0; v < U.rows(); ++v)
@@ -198,15 +240,54 @@ class Refiner {
     Places out;
     out.p.resize(at.size());
     out.J.resize(at.size());
+    if (sphere_) out.frame.resize(at.size());
+#pragma omp parallel for schedule(static)
     for (size_t v = 0; v < at.size(); ++v) {
       const SurfacePoint& s = at[v];
       out.p[v] = s.bary[0] * target_.V.row(target_.F(s.face, 0)).transpose() +
                  s.bary[1] * target_.V.row(target_.F(s.face, 1)).transpose() +
                  s.bary[2] * target_.V.row(target_.F(s.face, 2)).transpose();
-      out.J[v] = chart_J_[static_cast<size_t>(s.face)];
+      if (!sphere_) {
+        out.J[v] = chart_J_[static_cast<size_t>(s.face)];
+        continue;
+      }
+      const Eigen::Vector3d x = xyz(U, static_cast<int>(v)).normalized();
+      out.frame[v] = tangent_frame(x);
+      out.J[v] = sphere_jacobian(s, x) * out.frame[v];
     }
     out.at = std::move(at);
     return out;
+  }
+
+  // On the sphere, the derivative of the target point phi2^-1(x) in x (3 x 3; zero along x):
+  // x's coordinates on the chord triangle a, b = a + e1, c = a + e2 that its ray crosses are
+  // lambda_b = d . (e2 x a) / (x . N), lambda_c = d . (a x e1) / (x . N) (d = x - a, N = e1 x
+  // e2; correspondence.cpp), whose gradients are (e2 x a - lambda_b N) / (x . N) and
+  // (a x e1 - lambda_c N) / (x . N), and the target point is linear in them. Zero where the
+  // ray meets the triangle edge-on.
+  Eigen::Matrix3d sphere_jacobian(const SurfacePoint& s, const Eigen::Vector3d& x) const {
+    const int ia = target_.F(s.face, 0), ib = target_.F(s.face, 1), ic = target_.F(s.face, 2);
+    const Eigen::Vector3d a = xyz(domain_, ia), e1 = xyz(domain_, ib) - a, e2 = xyz(domain_, ic) - a;
+    const Eigen::Vector3d N = e1.cross(e2);
+    const double xn = x.dot(N);
+    if (!(xn > 0)) return Eigen::Matrix3d::Zero();
+    const Eigen::Vector3d gb = (e2.cross(a) - s.bary[1] * N) / xn, gc = (a.cross(e1) - s.bary[2] * N) / xn;
+    const Eigen::Matrix3d D = (xyz(target_.V, ib) - xyz(target_.V, ia)) * gb.transpose() +
+                              (xyz(target_.V, ic) - xyz(target_.V, ia)) * gc.transpose();
+    return D.allFinite() ? D : Eigen::Matrix3d::Zero();
+  }
+
+  // The face's orientation in the domain: its signed area on the plane, det on the sphere.
+  double orient(const mesh::Vertices& U, int a, int b, int c) const {
+    return sphere_ ? sphere_orientation(U, a, b, c) : signed_area(U, a, b, c);
+  }
+
+  // The chart point under face f's corners at U: the plane's centroid; on the sphere the mean
+  // of the corners, whose ray crosses the target's chord triangles where the centroid's does.
+  Eigen::Vector3d centroid(const mesh::Vertices& U, const Face& F) const {
+    Eigen::Vector3d c = (xyz(U, F.v[0]) + xyz(U, F.v[1]) + xyz(U, F.v[2])) / 3;
+    if (!sphere_) c.z() = 0;
+    return c;
   }
 
   // A new accepted place: its target faces start the next search, and its area factors
@@ -217,7 +298,8 @@ class Refiner {
     read_area_factors();
   }
 
-  // rho_f: the chart inverse's area factor (|J_t e1 x J_t e2|) on the target face t under
+  // rho_f: the chart inverse's area factor (|J_t e1 x J_t e2|; on the sphere the target face's
+  // area over its corners' det, times 2) on the target face t under
   // face f's centroid, read at the accepted place and held through a step's trials, so that
   // s stays linear in each corner as the step's model has it. Read afresh at each trial, a
   // corner crossing into a target face of another area factor made the barrier jump, and one
@@ -233,10 +315,9 @@ class Refiner {
 #pragma omp parallel for schedule(static)
     for (size_t f = 0; f < faces_.size(); ++f) {  // from the first corner's target face
       const Face& F = faces_[f];
-      const Vec2 c = (xy(U_, F.v[0]) + xy(U_, F.v[1]) + xy(U_, F.v[2])) / 3;
       SurfacePoint under;
-      if (locator_.walk(hint_[static_cast<size_t>(F.v[0])], c.x(), c.y(), under)) {
-        rho_[f] = area_factor(under.face);
+      if (locator_.walk(hint_[static_cast<size_t>(F.v[0])], centroid(U_, F), under)) {
+        rho_[f] = area_factor_[static_cast<size_t>(under.face)];
         walked[f] = 1;
       }
     }
@@ -245,18 +326,10 @@ class Refiner {
       if (!walked[f]) lost.push_back(f);
     if (lost.empty()) return;
     mesh::Vertices centroids(static_cast<Eigen::Index>(lost.size()), 3);
-    for (size_t i = 0; i < lost.size(); ++i) {
-      const Face& F = faces_[lost[i]];
-      const Vec2 c = (xy(U_, F.v[0]) + xy(U_, F.v[1]) + xy(U_, F.v[2])) / 3;
-      centroids.row(static_cast<Eigen::Index>(i)) << c.x(), c.y(), 0;
-    }
+    for (size_t i = 0; i < lost.size(); ++i)
+      centroids.row(static_cast<Eigen::Index>(i)) = centroid(U_, faces_[lost[i]]).transpose();
     const std::vector<SurfacePoint> found = locator_(centroids);
-    for (size_t i = 0; i < lost.size(); ++i) rho_[lost[i]] = area_factor(found[i].face);
-  }
-
-  double area_factor(int t) const {
-    const Mat32& J = chart_J_[static_cast<size_t>(t)];
-    return J.col(0).cross(J.col(1)).norm();
+    for (size_t i = 0; i < lost.size(); ++i) rho_[lost[i]] = area_factor_[static_cast<size_t>(found[i].face)];
   }
 
   // T X^-1 of face f: its image's 3-D edges (chords of the target) over its own.
@@ -271,7 +344,25 @@ class Refiner {
   // chart: det E rho_f / (2 area); zero where the face turns over in the chart.
   double area_ratio(const mesh::Vertices& U, size_t f) const {
     const Face& F = faces_[f];
-    return sign_ * signed_area(U, F.v[0], F.v[1], F.v[2]) * rho_[f] / (2 * F.area);
+    return sign_ * orient(U, F.v[0], F.v[1], F.v[2]) * rho_[f] * scale_[f] / (2 * F.area);
+  }
+
+  // The barrier beta (s + 1/s - 2), zero from 1 up on a collapsed face (scale_ > 1).
+  bool barrier_applies(size_t f, double s) const { return !(scale_[f] > 1 && s >= 1); }
+
+  // On the sphere, faces whose image starts collapsed, at area ratios down to 1e-9 where one
+  // map crowds a part of the surface the other does not (cow's legs): their ratio is read
+  // scaled to start at kCollapsed, and their barrier charges only shrinking. Unscaled, a
+  // barrier of 1e8 per unit area on a few faces made the whole energy, and the steps went
+  // into them alone. Not on the disk, where it moved the medians by -0.0002 to +0.0009
+  // (mannequin-devil's stretched pair, conformal route; bench/RESULTS.md, session 67).
+  void scale_collapsed() {
+    if (!sphere_) return;
+    for (size_t f = 0; f < faces_.size(); ++f) {
+      if (!checked_[f] || !(rho_[f] > 0)) continue;
+      const double s = area_ratio(U_, f);
+      if (s < kCollapsed) scale_[f] = kCollapsed / s;
+    }
   }
 
   // The area-weighted mean over the faces of |J - R|^2 (R the nearest isometry) plus the
@@ -286,7 +377,8 @@ class Refiner {
       double e = faces_[f].area * (J - nearest_isometry(J)).squaredNorm();
       if (checked_[f] && rho_[f] > 0) {  // no barrier where the image has no area
         const double s = area_ratio(U, f);
-        e = s > 0 ? e + faces_[f].area * kBarrier * (s + 1 / s - 2) : std::numeric_limits<double>::infinity();
+        if (!(s > 0)) e = std::numeric_limits<double>::infinity();
+        else if (barrier_applies(f, s)) e += faces_[f].area * kBarrier * (s + 1 / s - 2);
       }
       per_face[f] = e;
     }
@@ -331,14 +423,22 @@ class Refiner {
     Vec2 ds[3] = {Vec2::Zero(), Vec2::Zero(), Vec2::Zero()};
     double slope = 0, curvature = 0;
     if (checked_[f] && rho_[f] > 0) {
-      const Vec2 a = xy(U_, F.v[0]), b = xy(U_, F.v[1]), c = xy(U_, F.v[2]);
-      const double per_det = sign_ * rho_[f] / (2 * F.area);  // s per unit of the chart's det E
-      ds[1] = per_det * Vec2((c - a).y(), -(c - a).x());
-      ds[2] = per_det * Vec2(-(b - a).y(), (b - a).x());
-      ds[0] = -ds[1] - ds[2];
+      const double per_det = sign_ * rho_[f] * scale_[f] / (2 * F.area);  // s per unit of the chart's det E
+      if (sphere_) {  // d det(a, b, c) / da = b x c, and so round; in each corner's tangent frame
+        for (int k = 0; k < 3; ++k)
+          ds[k] = per_det * at.frame[static_cast<size_t>(F.v[k])].transpose() *
+                  xyz(U_, F.v[(k + 1) % 3]).cross(xyz(U_, F.v[(k + 2) % 3]));
+      } else {
+        const Vec2 a = xy(U_, F.v[0]), b = xy(U_, F.v[1]), c = xy(U_, F.v[2]);
+        ds[1] = per_det * Vec2((c - a).y(), -(c - a).x());
+        ds[2] = per_det * Vec2(-(b - a).y(), (b - a).x());
+        ds[0] = -ds[1] - ds[2];
+      }
       const double s = area_ratio(U_, f);
-      slope = F.area * kBarrier * (1 - 1 / (s * s));
-      curvature = F.area * kBarrier * 2 / (s * s * s);
+      if (barrier_applies(f, s)) {
+        slope = F.area * kBarrier * (1 - 1 / (s * s));
+        curvature = F.area * kBarrier * 2 / (s * s * s);
+      }
     }
     FaceModel m;
     for (int j = 0; j < 3; ++j) {
@@ -353,8 +453,8 @@ class Refiner {
     return m;
   }
 
-  // The columns of B are vertex v's unknowns (kind_ of them; the others zero): the plane's
-  // axes, or the circle's tangent.
+  // The columns of B are vertex v's unknowns (kind_ of them; the others zero) in its chart
+  // coordinates: the plane's axes (on the sphere the tangent frame's), or the circle's tangent.
   Mat2 basis(int v) const {
     const int k = kind_[static_cast<size_t>(v)];
     Mat2 B = Mat2::Zero();
@@ -363,8 +463,9 @@ class Refiner {
     return B;
   }
 
-  // The model's minimizer: U + d, boundary vertices moved along their tangent and put back on
-  // the circle, landmarks held. The faces' models go into the Hessian's fixed pattern
+  // The model's minimizer: U + d, boundary vertices moved along their tangent (put back on
+  // the circle by along()), on the sphere every vertex along its tangent frame (put back on
+  // the sphere by along()), landmarks held. The faces' models go into the Hessian's fixed pattern
   // (numeric/face_hessian.hpp), each block in its corners' unknowns B_j^T M_jk B_k.
   mesh::Vertices step(const Places& at) {
     const std::vector<numeric::Dof>& dof = hessian_->dof();
@@ -386,11 +487,24 @@ class Refiner {
       }
       hessian_->add(static_cast<Eigen::Index>(f), H);
     }
-    // A Levenberg-Marquardt shift of 1e-6 of the mean diagonal: a vertex on a target face the
-    // chart flattens has no Jacobian and would leave the system singular.
+    // A Levenberg-Marquardt shift: a vertex on a target face the chart flattens has no
+    // Jacobian and would leave the system singular. On the plane, 1e-6 of the mean diagonal.
+    // On the sphere, 1e-6 of each diagonal entry (Marquardt's scaling) and of the median one:
+    // where one sphere map crowds a part the other does not (cow's legs) the diagonal spans
+    // 1e-2 to 1e24, and a shift of the mean held every other vertex still while the rows of
+    // 1e24 needed their own. On the plane that rule made lion-head's twisted pair, OMT route,
+    // worse (0.0191 -> 0.0219; bench/RESULTS.md, session 67).
     Eigen::SparseMatrix<double>& M = hessian_->matrix();
-    const double shift = 1e-6 * M.diagonal().sum() / hessian_->size();
-    for (int r = 0; r < hessian_->size(); ++r) M.coeffRef(r, r) += shift;
+    if (sphere_) {
+      Eigen::VectorXd diagonal = M.diagonal();
+      auto middle = diagonal.data() + diagonal.size() / 2;
+      std::nth_element(diagonal.data(), middle, diagonal.data() + diagonal.size());
+      const double floor = *middle;
+      for (int r = 0; r < hessian_->size(); ++r) M.coeffRef(r, r) += 1e-6 * (M.coeffRef(r, r) + floor);
+    } else {
+      const double shift = 1e-6 * M.diagonal().sum() / hessian_->size();
+      for (int r = 0; r < hessian_->size(); ++r) M.coeffRef(r, r) += shift;
+    }
     if (!hessian_->factorize()) fail(ErrorCode::kInternal, "the isometric refinement's system is not positive definite");
     const Eigen::VectorXd z = hessian_->solve(rhs);
     mesh::Vertices next = U_;
@@ -399,6 +513,10 @@ class Refiner {
       if (d.count == 0) continue;
       Vec2 dz = Vec2::Zero();
       dz.head(d.count) = z.segment(d.offset, d.count);
+      if (sphere_) {
+        next.row(v) += (at.frame[static_cast<size_t>(v)] * (basis(v) * dz)).transpose();
+        continue;
+      }
       const Vec2 u = xy(U_, v) + basis(v) * dz;
       next(v, 0) = u.x();
       next(v, 1) = u.y();
@@ -410,40 +528,47 @@ class Refiner {
     for (size_t f = 0; f < faces_.size(); ++f) {
       if (!checked_[f]) continue;
       const int a = faces_[f].v[0], b = faces_[f].v[1], c = faces_[f].v[2];
-      if (!(sign_ * signed_area(W, a, b, c) > 0.1 * sign_ * signed_area(U_, a, b, c))) return true;
+      if (!(sign_ * orient(W, a, b, c) > 0.1 * sign_ * orient(U_, a, b, c))) return true;
     }
     return false;
   }
 
-  // U + t (next - U), boundary vertices put back on the circle.
+  // U + t (next - U), boundary vertices put back on the circle, on the sphere every vertex
+  // that moves put back on the sphere.
   mesh::Vertices along(const mesh::Vertices& next, double t) const {
     mesh::Vertices W = U_ + t * (next - U_);
-    for (int v = 0; v < W.rows(); ++v)
+    for (int v = 0; v < W.rows(); ++v) {
       if (kind_[static_cast<size_t>(v)] == 1) W.row(v) /= std::hypot(W(v, 0), W(v, 1));
+      if (sphere_ && kind_[static_cast<size_t>(v)] != 0) W.row(v).normalize();
+    }
     return W;
   }
 
   const mesh::TriMesh& target_;
+  const mesh::Vertices& domain_;  // the target's vertices in its chart
+  bool sphere_;
   DomainLocator locator_;
-  std::vector<Mat32> chart_J_;  // per target face, the Jacobian of the chart's inverse
+  std::vector<Mat32> chart_J_;  // on the plane, per target face, the Jacobian of the chart's inverse
+  std::vector<double> area_factor_;  // per target face, the chart inverse's area factor
   mesh::Vertices U_;            // the accepted place
   std::vector<int> hint_;       // per source vertex, its target face at the accepted place
   double sign_ = 1, area_ = 0;
   std::vector<Face> faces_;
   std::vector<char> checked_;  // the face's image was the right way round at the start
   std::vector<double> rho_;    // per face, the chart inverse's area factor at the accepted place
+  std::vector<double> scale_;  // per face, its area ratio's scale (scale_collapsed)
   std::vector<char> kind_;  // per vertex, its unknowns: 0 held, 1 on the circle, 2 free
   std::unique_ptr<numeric::FaceHessian> hessian_;  // over faces_' corners, made in the constructor
 };
 
 }  // namespace
 
-IsometricRefineResult refine_isometric_disk(const mesh::TriMesh& source, const mesh::Vertices& mapped,
-                                            const mesh::TriMesh& target, const mesh::Vertices& target_domain,
-                                            const std::vector<int>& fixed, const IsometricRefineOptions& options) {
+IsometricRefineResult refine_isometric(const mesh::TriMesh& source, const mesh::Vertices& mapped,
+                                       const mesh::TriMesh& target, const mesh::Vertices& target_domain,
+                                       const std::vector<int>& fixed, bool sphere, const IsometricRefineOptions& options) {
   if (mapped.rows() != source.V.rows()) invalid("the refinement needs one domain point per source vertex");
   if (target_domain.rows() != target.V.rows()) invalid("the refinement needs one domain point per target vertex");
-  Refiner r(source, mapped, target, target_domain, fixed);
+  Refiner r(source, mapped, target, target_domain, fixed, sphere);
   return r.run(options);
 }
 

@@ -65,6 +65,24 @@ for method in ("area-preserving", "conformal"):
 rc, so, se = run("register", lion, lion, "--landmarks", lm, lm, "--method", "conformal", "--harmonic-only", "--json")
 check(rc == 0 and json.loads(so)["isometric"] == {"applied": False}, f"--harmonic-only: exit {rc}, isometric {so[-200:]!r}")
 
+# On the sphere the refinement runs only when asked; a closed mesh onto itself stays itself.
+bear = os.path.join(data, "bear.off")
+bear_corr = os.path.join(work, "bear.csv")
+for extra, applied in [([], False), (["--isometric-sphere"], True)]:
+    rc, so, se = run("register", bear, bear, "--domain", "sphere", "--method", "conformal", *extra, "--json", "-o", bear_corr)
+    check(rc == 0, f"sphere {extra}: exit {rc}: {se.strip()}")
+    rep = json.loads(so)
+    iso = rep["isometric"]
+    check(iso["applied"] == applied, f"sphere {extra}: isometric {iso}")
+    if applied:
+        check(iso["energy_before"] < 1e-20 and iso["iterations"] == 0 and iso["converged"],
+              f"sphere: the identity has no distortion to lower: {iso}")
+    check(rep["domain_folded_faces"] == 0, f"sphere {extra}: no folds")
+    bv, _ = read_off(bear)
+    with open(bear_corr) as f:
+        worst = max(math.dist((float(r["x"]), float(r["y"]), float(r["z"])), bv[int(r["source_vertex"])]) for r in csv.DictReader(f))
+    check(worst < 1e-6, f"sphere {extra}: every vertex lands on itself: worst {worst:.3g}")
+
 # Refusals: exit 2, one line naming the problem.
 short = write("short.txt", [10, 2000, 5000])
 far = write("far.txt", [10, 2000, 5000, 10 ** 7])

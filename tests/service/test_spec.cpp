@@ -89,6 +89,35 @@ TEST(Spec, DistanceAndMatrixRequestsSurviveTheWire) {
   EXPECT_EQ(mb.markers[2].boundary, 5);
 }
 
+TEST(Spec, RegisterRequestsSurviveTheWire) {
+  jobs::RegisterRequest r;
+  r.domain = jobs::Domain::kSphere;
+  r.method = jobs::MapMethod::kConformal;
+  r.source_landmarks = {3, 8, 1};
+  r.target_landmarks = {5, 2, 9};
+  r.tolerance = 1e-7;
+  r.max_iterations = 55;
+  r.isometric = false;
+  r.isometric_sphere = true;
+  pb::RegisterSpec s;
+  spec::to_proto(r, &s);
+  const jobs::RegisterRequest back = spec::from_proto(s);
+  EXPECT_EQ(back.domain, r.domain);
+  EXPECT_EQ(back.method, r.method);
+  EXPECT_EQ(back.source_landmarks, r.source_landmarks);
+  EXPECT_EQ(back.target_landmarks, r.target_landmarks);
+  EXPECT_EQ(back.tolerance, r.tolerance);
+  EXPECT_EQ(back.max_iterations, r.max_iterations);
+  EXPECT_FALSE(back.isometric);
+  EXPECT_TRUE(s.harmonic_only());
+  EXPECT_TRUE(back.isometric_sphere);
+  // An old client's spec: refined on the disk, not on the sphere, by the OMT route.
+  const jobs::RegisterRequest old = spec::from_proto(pb::RegisterSpec());
+  EXPECT_TRUE(old.isometric);
+  EXPECT_FALSE(old.isometric_sphere);
+  EXPECT_EQ(old.method, jobs::MapMethod::kAreaPreserving);
+}
+
 TEST(Spec, BadSpecsNameTheirField) {
   pb::MapSpec s;
   s.set_t(0.5);

@@ -287,7 +287,7 @@ TEST(Correspondence, TheWalkFromAnyFaceFindsTheTrianglesTheTreeFinds) {
   for (int i = 0; i < 200; ++i) {
     const int from = (i * 37) % d.num_faces();
     SurfacePoint w;
-    if (!locator.walk(from, P(i, 0), P(i, 1), w)) continue;  // more than 64 faces away
+    if (!locator.walk(from, P.row(i).transpose(), w)) continue;  // more than 64 faces away
     ++far_walks;
     EXPECT_GE(w.bary.minCoeff(), 0);
     EXPECT_NEAR(w.bary.sum(), 1, 1e-12);
@@ -297,9 +297,37 @@ TEST(Correspondence, TheWalkFromAnyFaceFindsTheTrianglesTheTreeFinds) {
   EXPECT_GT(far_walks, 100);  // most walks across a 12-ring disk end within 64 faces
   // From the face holding it, the walk ends at once; outside the disk it fails.
   SurfacePoint w;
-  EXPECT_TRUE(locator.walk(tree[0].face, P(0, 0), P(0, 1), w));
+  EXPECT_TRUE(locator.walk(tree[0].face, P.row(0).transpose(), w));
   EXPECT_EQ(w.face, tree[0].face);
-  EXPECT_FALSE(locator.walk(tree[0].face, 1.5, 0.2, w));
+  EXPECT_FALSE(locator.walk(tree[0].face, Eigen::Vector3d(1.5, 0.2, 0), w));
+}
+
+// On the sphere the walk follows the ray from the centre: it ends on the chord triangle the
+// tree's ray query finds, at the same point, from any start face.
+TEST(Correspondence, TheSphereWalkEndsOnTheChordTriangleTheRayCrosses) {
+  const mesh::TriMesh s = mesh::make_icosphere(3);
+  const DomainLocator locator(s.F, s.V, true);
+  mesh::Vertices P(200, 3);
+  for (int i = 0; i < 200; ++i) {  // a Fibonacci spiral of directions, at several radii
+    const double z = 1 - (2 * i + 1) / 200.0, r = std::sqrt(1 - z * z), t = i * 2.399963;
+    P.row(i) = (0.5 + (i % 3) * 0.5) * Eigen::RowVector3d(r * std::cos(t), r * std::sin(t), z);
+  }
+  const std::vector<SurfacePoint> tree = locator(P);
+  int ended = 0;
+  for (int i = 0; i < 200; ++i) {
+    SurfacePoint w;
+    if (!locator.walk((i * 53) % s.num_faces(), P.row(i).transpose(), w)) continue;
+    ++ended;
+    EXPECT_GE(w.bary.minCoeff(), 0);
+    EXPECT_NEAR(w.bary.sum(), 1, 1e-12);
+    const Eigen::Vector3d at = positions(s, {w}).row(0).transpose(), hit = positions(s, {tree[static_cast<size_t>(i)]}).row(0).transpose();
+    EXPECT_LT(at.normalized().cross(P.row(i).transpose().normalized()).norm(), 1e-12) << i;
+    EXPECT_LT((at - hit).norm(), 1e-12) << i;
+  }
+  EXPECT_GT(ended, 100);
+  // From the opposite side of the sphere the ray misses the start face's front: no walk.
+  SurfacePoint w;
+  EXPECT_FALSE(locator.walk(tree[0].face, -P.row(0).transpose(), w));
 }
 
 // chart_flipped_faces: a correspondence placed exactly (every vertex on itself) turns nothing
@@ -359,7 +387,7 @@ TEST(IsometricRefine, AWarpedMapOfAnEllipseReturnsToTheIsometryThroughTheTargets
   const double before = worst_error(start);
   ASSERT_GT(before, 0.1);
 
-  const IsometricRefineResult r = refine_isometric_disk(source, start, target, chart.V, {centre, east});
+  const IsometricRefineResult r = refine_isometric(source, start, target, chart.V, {centre, east}, false);
   EXPECT_TRUE(r.converged) << r.iterations << " iterations";
   EXPECT_LT(r.energy_after, 0.01 * r.energy_before);
   EXPECT_LT(worst_error(r.mapped), 0.02) << "from " << before;
@@ -384,8 +412,52 @@ TEST(IsometricRefine, AWarpedMapOfAnEllipseReturnsToTheIsometryThroughTheTargets
   IsometricRefineOptions cancel;
   int asked = 0;
   cancel.keep_going = [&](int step, double) { return ++asked, step < 2; };
-  EXPECT_ERROR(refine_isometric_disk(source, start, target, chart.V, {centre, east}, cancel), ErrorCode::kCancelled, "cancelled");
+  EXPECT_ERROR(refine_isometric(source, start, target, chart.V, {centre, east}, false, cancel), ErrorCode::kCancelled, "cancelled");
   EXPECT_EQ(asked, 3);
+}
+
+TEST(IsometricRefine, AWarpedMapOfAnEllipsoidReturnsToTheIsometryOnTheSphere) {
+  // The target is the ellipsoid x^2/4 + y^2 + z^2 = 1, an icosphere stretched along x, charted
+  // onto the unit sphere by its icosphere (the chart (x, y, z) -> (x / 2, y, z) on the
+  // vertices). The source is the same ellipsoid from a turned, coarser icosphere, so its
+  // isometry onto the target that fixes three points sends each vertex to its own unit vector
+  // in the chart (to the chords' resolution). g starts from that map warped by turns about
+  // the z axis that vary with the height, 0.5 z (1 - z^2), and one about the x axis varying
+  // with x; three landmarks are held at their places. The refinement must bring every vertex
+  // back near its place, hold the landmarks, keep every point on the sphere and fold nothing.
+  const mesh::TriMesh chart = mesh::make_icosphere(4);
+  mesh::TriMesh target = chart;
+  target.V.col(0) *= 2;
+  mesh::TriMesh unit = mesh::make_icosphere(3);
+  const Eigen::Matrix3d turn = Eigen::AngleAxisd(0.5, Eigen::Vector3d(1, 2, 2).normalized()).toRotationMatrix();
+  unit.V = unit.V * turn.transpose();
+  mesh::TriMesh source = unit;
+  source.V.col(0) *= 2;
+  mesh::Vertices start = unit.V;
+  for (int v = 0; v < start.rows(); ++v) {
+    const Eigen::Vector3d u = unit.V.row(v).transpose();
+    const Eigen::Vector3d w = Eigen::AngleAxisd(0.5 * u.z() * (1 - u.z() * u.z()), Eigen::Vector3d::UnitZ()) *
+                              (Eigen::AngleAxisd(0.3 * u.x() * (1 - u.x() * u.x()), Eigen::Vector3d::UnitX()) * u);
+    start.row(v) = w.normalized().transpose();
+  }
+  const std::vector<int> fixed = {vertex_at(unit, {0, 0, 1}), vertex_at(unit, {0, 0, -1}), vertex_at(unit, {1, 0, 0})};
+  for (int v : fixed) start.row(v) = unit.V.row(v);
+  ASSERT_EQ(folds(source, start, true), 0);
+  auto worst_error = [&](const mesh::Vertices& X) { return (X - unit.V).rowwise().norm().maxCoeff(); };
+  const double before = worst_error(start);
+  ASSERT_GT(before, 0.1);
+
+  const IsometricRefineResult r = refine_isometric(source, start, target, chart.V, fixed, true);
+  EXPECT_TRUE(r.converged) << r.iterations << " iterations";
+  EXPECT_LT(r.energy_after, 1e-3 * r.energy_before);
+  EXPECT_LT(worst_error(r.mapped), 0.005) << "from " << before;  // 0.0011 here, in 5 full Newton steps
+  EXPECT_EQ(folds(source, r.mapped, true), 0);
+  for (int v : fixed) EXPECT_EQ(r.mapped.row(v), start.row(v));
+  for (int v = 0; v < source.num_vertices(); ++v) EXPECT_NEAR(r.mapped.row(v).norm(), 1.0, 1e-12) << v;
+  // The places it hands back are locate()'s: the points where the rays cross the chart's chords.
+  ASSERT_EQ(r.located.size(), static_cast<size_t>(r.mapped.rows()));
+  const mesh::Vertices found = positions(chart, r.located);
+  EXPECT_LT((found - positions(chart, locate(chart.F, chart.V, r.mapped, true))).rowwise().norm().maxCoeff(), 1e-12);
 }
 
 TEST(Register, AFlatDiskOntoARemeshedCopyOfItselfErrsOnlyAtTheRemeshingsResolution) {
@@ -462,6 +534,20 @@ TEST(Register, CorrespondingPolesMakeTheSphereOmtMapsOfTwoMeshingsAgree) {
   std::vector<double> e = registration_errors(p, found, 300);
   std::nth_element(e.begin(), e.begin() + static_cast<long>(e.size() / 2), e.end());
   EXPECT_LT(e[e.size() / 2], 0.015);  // 0.0087 measured; the conformal route 0.0074
+  EXPECT_FALSE(out.report["isometric"]["applied"].get<bool>());  // off on the sphere unless asked
+
+  // Asked for, the refinement lowers its energy, folds nothing and keeps the error.
+  rr.isometric_sphere = true;
+  const jobs::RegisterOutcome refined = jobs::run_register(as_clean(p.source), as_clean(p.target), "source", "target", rr);
+  const nlohmann::json& iso = refined.report["isometric"];
+  ASSERT_TRUE(iso["applied"].get<bool>());
+  EXPECT_LT(iso["energy_after"].get<double>(), iso["energy_before"].get<double>());
+  EXPECT_EQ(refined.report["domain_folded_faces"], 0);
+  found.clear();
+  for (const auto& [f, w] : refined.target_points) found.push_back({f, w});
+  std::vector<double> e2 = registration_errors(p, found, 300);
+  std::nth_element(e2.begin(), e2.begin() + static_cast<long>(e2.size() / 2), e2.end());
+  EXPECT_LT(e2[e2.size() / 2], 0.015) << "g alone " << e[e.size() / 2];
 }
 
 TEST(Register, RefusesMeshesOfDifferentTopologyAndBadLandmarks) {

@@ -90,8 +90,11 @@ void RegisterFlags::add_to(CLI::App* cmd) {
   cmd->add_option("--max-iterations", r.max_iterations, "Newton iterations of each map (default 200)")
       ->check(CLI::Range(1, jobs::MapRequest::kMaxIterations));
   cmd->add_flag("--harmonic-only{false}", r.isometric,
-                "disk: keep g as Alg. 7 makes it (harmonic, held by the landmarks), without moving it toward an "
+                "keep g as Alg. 7 makes it (harmonic, held by the landmarks), without moving it toward an "
                 "isometry of the two surfaces afterwards");
+  cmd->add_flag("--isometric-sphere", r.isometric_sphere,
+                "sphere: move g toward an isometry too (on the disk it is by default; on the sphere it helps some "
+                "pairs and sets others back)");
 }
 
 jobs::RegisterRequest RegisterFlags::resolve() const {

@@ -347,17 +347,18 @@ class Client:
 
 
     def register(self, source, target, domain="disk", method="area-preserving", *, landmarks=None, cut_hole=False,
-                 tolerance=0.0, max_iterations=0, harmonic_only=False, progress=None):
+                 tolerance=0.0, max_iterations=0, harmonic_only=False, isometric_sphere=False, progress=None):
         """Registers `source` onto `target` (Alg. 7: f = phi2^-1 o g o phi1, through their
         area-preserving or conformal maps) and waits for it. `landmarks`: a pair of
         sequences of input vertex numbers, (source's, target's), paired by order.
-        `harmonic_only`: on the disk, keep g as Alg. 7 makes it, without moving it toward an
-        isometry of the two surfaces."""
+        `harmonic_only`: keep g as Alg. 7 makes it, without moving it toward an isometry of the
+        two surfaces; `isometric_sphere`: on the sphere, move it so too (the disk's default)."""
         src, tgt = ([], []) if landmarks is None else (list(landmarks[0]), list(landmarks[1]))
         spec = pb.RegisterSpec(source=self.mesh_id(source), target=self.mesh_id(target),
                                domain=_pick(_DOMAINS, domain, "domain"), method=_pick(_MAP_METHODS, method, "method"),
                                cut_hole=cut_hole, source_landmarks=src, target_landmarks=tgt, tolerance=tolerance,
-                               max_iterations=max_iterations, output_format="obj", harmonic_only=harmonic_only)
+                               max_iterations=max_iterations, output_format="obj", harmonic_only=harmonic_only,
+                               isometric_sphere=isometric_sphere)
         job = self.watch(self.submit(registration=spec).id, progress)
         csv = self.result(job.id, "correspondence").decode()
         table = np.loadtxt(io.StringIO(csv), delimiter=",", skiprows=1, ndmin=2)
