@@ -47,7 +47,10 @@ double sphere_orientation(const mesh::Vertices& U, int a, int b, int c) {
   return p.dot((xyz(U, b) - p).cross(xyz(U, c) - p));
 }
 
-// Two orthonormal tangents of the unit sphere at p: a vertex's unknowns on the sphere.
+// Two orthonormal tangents of the unit sphere at p: a vertex's unknowns on the sphere. Not the
+// area refinement's basis (SphereGeometry::begin, another axis rule): the sphere's Marquardt
+// shift scales each unknown by its own diagonal entry, so the steps depend on the basis, and
+// with that one cow's bent pair went 0.0118 -> 0.0138 (bench/RESULTS.md, session 67).
 Mat32 tangent_frame(const Eigen::Vector3d& p) {
   Eigen::Index k;
   p.cwiseAbs().minCoeff(&k);
@@ -83,7 +86,8 @@ struct Face {
 
 // Where each source vertex lands on the target: the point, the Jacobian of the chart's
 // inverse on the target face that holds it (by the vertex's unknowns: the plane's axes, or on
-// the sphere the tangent frame), and that face with the barycentric coordinates.
+// the sphere the tangent frame; filled only for an accepted place, by differentiate()), and
+// that face with the barycentric coordinates.
 struct Places {
   std::vector<Eigen::Vector3d> p;
   std::vector<Mat32> J;
@@ -239,24 +243,33 @@ class Refiner {
     }
     Places out;
     out.p.resize(at.size());
-    out.J.resize(at.size());
-    if (sphere_) out.frame.resize(at.size());
 #pragma omp parallel for schedule(static)
     for (size_t v = 0; v < at.size(); ++v) {
       const SurfacePoint& s = at[v];
       out.p[v] = s.bary[0] * target_.V.row(target_.F(s.face, 0)).transpose() +
                  s.bary[1] * target_.V.row(target_.F(s.face, 1)).transpose() +
                  s.bary[2] * target_.V.row(target_.F(s.face, 2)).transpose();
-      if (!sphere_) {
-        out.J[v] = chart_J_[static_cast<size_t>(s.face)];
-        continue;
-      }
-      const Eigen::Vector3d x = xyz(U, static_cast<int>(v)).normalized();
-      out.frame[v] = tangent_frame(x);
-      out.J[v] = sphere_jacobian(s, x) * out.frame[v];
     }
     out.at = std::move(at);
     return out;
+  }
+
+  // The chart inverse's Jacobians (and on the sphere the tangent frames) of an accepted place
+  // at U_, which the next step's model needs; the trials' places need only their points.
+  void differentiate(Places& at) const {
+    at.J.resize(at.at.size());
+    if (sphere_) at.frame.resize(at.at.size());
+#pragma omp parallel for schedule(static)
+    for (size_t v = 0; v < at.at.size(); ++v) {
+      const SurfacePoint& s = at.at[v];
+      if (!sphere_) {
+        at.J[v] = chart_J_[static_cast<size_t>(s.face)];
+        continue;
+      }
+      const Eigen::Vector3d x = xyz(U_, static_cast<int>(v)).normalized();
+      at.frame[v] = tangent_frame(x);
+      at.J[v] = sphere_jacobian(s, x) * at.frame[v];
+    }
   }
 
   // On the sphere, the derivative of the target point phi2^-1(x) in x (3 x 3; zero along x):
@@ -290,9 +303,10 @@ class Refiner {
     return c;
   }
 
-  // A new accepted place: its target faces start the next search, and its area factors
-  // serve the barrier until the next one.
-  void accept(const Places& at) {
+  // A new accepted place (at U_): its target faces start the next search, its area factors
+  // serve the barrier until the next one, and its Jacobians the next step's model.
+  void accept(Places& at) {
+    differentiate(at);
     hint_.resize(at.at.size());
     for (size_t v = 0; v < at.at.size(); ++v) hint_[v] = at.at[v].face;
     read_area_factors();
