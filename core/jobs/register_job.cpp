@@ -313,7 +313,9 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
                 {"mobius_a", {g.mobius_a.x(), g.mobius_a.y(), g.mobius_a.z()}},
                 {"start_rms", g.start_rms},
                 {"steps", g.steps},
-                {"max_landmark_error", g.max_landmark_error}};
+                {"max_landmark_error", g.max_landmark_error},
+                {"slivers_let_turn", g.slivers_let_turn},
+                {"mended_faces", g.mended_faces}};
   j["isometric"] = isometric;
   j["domain_folded_faces"] = folds;
   j["morph_flipped_faces"] = morph_flips;

@@ -120,6 +120,8 @@ void RegisterRequest::validate() const {
     }
   }
   if (domain == Domain::kSphere && cut_hole) invalid("{cut_hole} applies to the disk domain");
+  if (isometric_sphere && !isometric)
+    invalid("{harmonic_only} keeps g without the isometric refinement and {isometric_sphere} asks for it; give one of them");
   if (!finite_at_least(tolerance, 0)) invalid("{tolerance} must be a positive number");
   if (max_iterations < 1 || max_iterations > MapRequest::kMaxIterations)
     invalid("{max_iterations} must lie in [1, " + std::to_string(MapRequest::kMaxIterations) + "]");

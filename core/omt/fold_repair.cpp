@@ -202,6 +202,9 @@ class SphereFoldRepair {
       }
   }
 
+  // Vertices no region frees (a registration's landmarks).
+  void hold(const std::vector<char>* held) { held_ = held; }
+
   bool folded_face(const mesh::Vertices& Z, int f) const { return conformal::face_folded(m_, Z, f, true); }
   int count_folds(const mesh::Vertices& Z) const {
     int k = 0;
@@ -240,7 +243,7 @@ class SphereFoldRepair {
     std::vector<char> seen(nf_, 0);
     int nfree = 0;
     for (int v = 0; v < nv_; ++v)
-      if (dist[v] >= 0 && dist[v] <= rings) {
+      if (dist[v] >= 0 && dist[v] <= rings && !(held_ && (*held_)[v])) {
         is_free[v] = 1, ++nfree;
         for (int f : star_[v])
           if (!seen[f]) seen[f] = 1, faces.push_back(f);
@@ -304,16 +307,20 @@ class SphereFoldRepair {
   Eigen::VectorXd area_;
   std::vector<std::vector<int>> star_, ring_;
   double scale_ = 1;
+  const std::vector<char>* held_ = nullptr;
 };
 
 }  // namespace
 
 int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded,
-                                   const std::function<bool(int round, int folds)>& keep_going, BarrierSpace space) {
+                                   const std::function<bool(int round, int folds)>& keep_going, BarrierSpace space,
+                                   const BarrierRepairScope& scope) {
   const int nv = m.num_vertices(), nf = m.num_faces();
+  if (!scope.held.empty() && static_cast<int>(scope.held.size()) != nv) invalid("the held vertices' flags are not one per vertex");
   SphereFoldRepair repair(m, space);
+  if (!scope.held.empty()) repair.hold(&scope.held);
   folded = repair.count_folds(X);
-  const double allowed = repair.distortion(X);
+  const double allowed = scope.bound_distortion ? repair.distortion(X) : std::numeric_limits<double>::infinity();
   repair.set_scale(X);
   int moved = 0;
   long work = 0;

@@ -17,6 +17,7 @@
 #pragma once
 
 #include <functional>
+#include <vector>
 
 #include "mesh/mesh.hpp"
 
@@ -30,6 +31,15 @@ namespace brenier::omt {
 /// (1 + |z|^2)^2 / 4 at each face.
 enum class BarrierSpace { kSphere, kChart };
 
+/// What a repair may change. An area-preserving map's repair keeps its mean |log area ratio|
+/// from rising and may move any vertex. A registration's g (register/domain_match.hpp) holds
+/// its landmarks, and its reference areas are its own faces' before the repair, which any
+/// untangling raises: there only the folds and the covering count.
+struct BarrierRepairScope {
+  std::vector<char> held;       // one flag per vertex: never moved (empty: none held)
+  bool bound_distortion = true; // a repair must not raise the mean |log area ratio|
+};
+
 /// Repairs the folded faces of a map X of closed genus-0 `m` onto the unit sphere, one
 /// cluster at a time: the vertices within 1, 2, 4, 8 or 16 rings of a folded face are
 /// untangled against reference triangles of their faces' target areas (m's face areas
@@ -41,9 +51,10 @@ enum class BarrierSpace { kSphere, kChart };
 /// tries add up to 2 #V + 1000 (a map the repair can mend needs under 1 #V).
 /// Returns the vertices moved; `folded` gets the folds left. `keep_going`, if given, is
 /// called before each cluster with (round, folds left); false cancels (Error(kCancelled)).
-/// `space` says where the clusters are untangled (BarrierSpace).
+/// `space` says where the clusters are untangled (BarrierSpace); `scope` which vertices stay
+/// and whether the area distortion is bounded (BarrierRepairScope).
 int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, int& folded,
                                    const std::function<bool(int round, int folds)>& keep_going = {},
-                                   BarrierSpace space = BarrierSpace::kSphere);
+                                   BarrierSpace space = BarrierSpace::kSphere, const BarrierRepairScope& scope = {});
 
 }  // namespace brenier::omt

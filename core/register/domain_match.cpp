@@ -15,6 +15,7 @@
 #include "conformal/conformal_map.hpp"
 #include "conformal/mobius.hpp"
 #include "mesh/topology.hpp"
+#include "omt/fold_repair.hpp"
 
 namespace brenier::registration {
 
@@ -107,6 +108,9 @@ struct Continuation {
   std::vector<char> skip_vertex;     // never moved (the pole)
   double radius = 1;                 // the spline steps vanish on and beyond this circle
   bool squared_cut = false;
+  // Faces that become slivers on the way may turn over (mended afterwards; see spheres_from).
+  bool let_slivers_turn = false;
+  static constexpr double kSliver = 1e-2;
 
   double sign(const std::vector<V2>& Y, Eigen::Index f) const {
     const V2 &a = Y[static_cast<size_t>(F(f, 0))], &b = Y[static_cast<size_t>(F(f, 1))], &c = Y[static_cast<size_t>(F(f, 2))];
@@ -208,10 +212,24 @@ struct Continuation {
     for (size_t i = 0; i < L; ++i) Y[static_cast<size_t>(landmark_vertex[i])] = goal[i];  // exact
   }
 
+  // Whether face f is thinner than kSliver of its longest edge at the places Y (twice its
+  // area below kSliver times the longest edge squared).
+  bool sliver(const std::vector<V2>& Y, Eigen::Index f) const {
+    double longest = 0;
+    for (int k = 0; k < 3; ++k)
+      longest = std::max(longest, (Y[static_cast<size_t>(F(f, k))] - Y[static_cast<size_t>(F(f, (k + 1) % 3))]).squaredNorm());
+    return std::abs(sign(Y, f)) < kSliver * longest;
+  }
+
+  // The first face that a step from X to Y turns over, -1 for none. Faces whose sign0 is 0
+  // (slivers at the start, a corner at the pole) are not checked; with let_slivers_turn, nor
+  // are faces that are slivers at X or already turned there.
   Eigen::Index first_fold(const std::vector<double>& sign0, const std::vector<V2>& Y) const {
     for (Eigen::Index f = 0; f < F.rows(); ++f) {
       const double s0 = sign0[static_cast<size_t>(f)];
-      if (s0 != 0 && !(s0 * sign(Y, f) > 0)) return f;
+      if (s0 == 0 || s0 * sign(Y, f) > 0) continue;
+      if (let_slivers_turn && (!(s0 * sign(X, f) > 0) || sliver(X, f))) continue;
+      return f;
     }
     return -1;
   }
@@ -229,13 +247,8 @@ struct Continuation {
     // centroids fall nearly in line (bear's sphere map: edges 0.07, 0.11, 0.18, height 1e-4;
     // every one of its pairs was refused for such a face, with the landmarks 0.02 from their
     // targets). The caller mends the ones that turned (mend_slivers) or refuses.
-    constexpr double kSliver = 1e-2;
-    for (Eigen::Index f = 0; f < F.rows(); ++f) {
-      double longest = 0;
-      for (int k = 0; k < 3; ++k)
-        longest = std::max(longest, (X[static_cast<size_t>(F(f, k))] - X[static_cast<size_t>(F(f, (k + 1) % 3))]).squaredNorm());
-      if (std::abs(sign0[static_cast<size_t>(f)]) < kSliver * longest) sign0[static_cast<size_t>(f)] = 0;
-    }
+    for (Eigen::Index f = 0; f < F.rows(); ++f)
+      if (sliver(X, f)) sign0[static_cast<size_t>(f)] = 0;
     int steps = 0;
     if (!moving.empty()) {
       std::vector<V2> Y = X;
@@ -270,21 +283,32 @@ struct Continuation {
 
 // The slivers a continuation let turn over (Continuation::run), unfolded by local moves with
 // the landmarks and `fixed` held (conformal::untangle: a corner mirrored across its opposite
-// edge, or a Tutte step). A fold that stays is refused, naming the landmarks nearest it.
-void mend_slivers(const mesh::Faces& faces, mesh::Vertices& mapped, bool sphere, std::vector<char> fixed,
-                  const std::vector<LandmarkPair>& landmarks) {
+// edge, or a Tutte step); on the sphere what that leaves by the barrier untangling of the
+// area-preserving maps (omt/fold_repair.hpp) against the faces' own shapes before the mend,
+// the same vertices held. On cow's area-preserving domains the local moves left 2-4 folds
+// that the barrier mended (bench/RESULTS.md, session 68). A fold that stays is refused,
+// naming the landmarks nearest it. Returns the faces that were folded before the mend.
+int mend_slivers(const mesh::Faces& faces, mesh::Vertices& mapped, bool sphere, std::vector<char> fixed,
+                 const std::vector<LandmarkPair>& landmarks) {
   const mesh::TriMesh m{mapped, faces};
-  auto first_folded = [&] {
-    for (int f = 0; f < m.num_faces(); ++f)
-      if (conformal::face_folded(m, mapped, f, sphere)) return f;
-    return -1;
+  auto folds = [&] {
+    int n = 0;
+    for (int f = 0; f < m.num_faces(); ++f) n += conformal::face_folded(m, mapped, f, sphere);
+    return n;
   };
-  if (first_folded() < 0) return;
+  const int before = folds();
+  if (before == 0) return 0;
   for (const auto& l : landmarks) fixed[static_cast<size_t>(l.vertex)] = 1;
   int left = 0;
   conformal::untangle(m, mapped, sphere, fixed, left);
-  const int f = first_folded();
-  if (f < 0) return;
+  if (sphere && left > 0) {
+    const omt::BarrierRepairScope scope{fixed, false};
+    omt::repair_sphere_folds_by_barrier(m, mapped, left, {}, omt::BarrierSpace::kSphere, scope);
+    if (left > 0) omt::repair_sphere_folds_by_barrier(m, mapped, left, {}, omt::BarrierSpace::kChart, scope);
+  }
+  int f = 0;
+  while (f < m.num_faces() && !conformal::face_folded(m, mapped, f, sphere)) ++f;
+  if (f == m.num_faces()) return before;
   std::vector<std::string> names;
   std::vector<double> distance;
   for (const auto& l : landmarks) {
@@ -483,7 +507,7 @@ DomainMatch disks_from(const mesh::Vertices& points, const mesh::Faces& faces, c
   out.steps = c.run(targets);
   out.mapped = mesh::Vertices::Zero(points.rows(), 3);
   for (Eigen::Index i = 0; i < points.rows(); ++i) out.mapped.row(i).head<2>() = c.X[static_cast<size_t>(i)].transpose();
-  mend_slivers(faces, out.mapped, false, boundary, landmarks);
+  out.mended_faces = mend_slivers(faces, out.mapped, false, boundary, landmarks);
   for (const auto& l : landmarks)
     out.max_landmark_error = std::max(out.max_landmark_error, (out.mapped.row(l.vertex).transpose() - Eigen::Vector3d(l.q.x(), l.q.y(), 0)).norm());
   return out;
@@ -511,8 +535,9 @@ Eigen::Vector3d unstereo(const V2& y) {
 }
 
 DomainMatch spheres_from(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks,
-                         MatchStart start) {
+                         MatchStart start, bool let_slivers_turn) {
   DomainMatch out;
+  out.slivers_let_turn = let_slivers_turn;
   std::vector<Eigen::Vector3d> p, q;
   for (const auto& l : landmarks) {
     p.push_back(points.row(l.vertex).transpose().normalized());
@@ -581,11 +606,12 @@ DomainMatch spheres_from(const mesh::Vertices& points, const mesh::Faces& faces,
     for (Eigen::Index f = 0; f < faces.rows(); ++f)
       for (int k = 0; k < 3; ++k)
         if (!finite[static_cast<size_t>(faces(f, k))]) c.skip_face[static_cast<size_t>(f)] = 1;
+    c.let_slivers_turn = let_slivers_turn;
     out.steps = c.run(targets);
     for (size_t i = 0; i < n; ++i)
       if (finite[i])
         out.mapped.row(static_cast<Eigen::Index>(i)) = (Q.transpose() * unstereo(c.X[i])).transpose();
-    mend_slivers(faces, out.mapped, true, c.skip_vertex, landmarks);
+    out.mended_faces = mend_slivers(faces, out.mapped, true, c.skip_vertex, landmarks);
   }
   for (size_t k = 0; k < landmarks.size(); ++k)
     out.max_landmark_error = std::max(out.max_landmark_error, (out.mapped.row(landmarks[k].vertex).transpose() - q[k]).norm());
@@ -595,18 +621,26 @@ DomainMatch spheres_from(const mesh::Vertices& points, const mesh::Faces& faces,
 // The match from `start`; where the landmarks cannot be carried unfolded from it, from the
 // other start (a Moebius map fits the landmarks closer than a turn, so it can leave shorter
 // paths; a turn bends the mesh less where the domains differ by more than a Moebius map).
-// Refused from both: the first start's reason.
-DomainMatch with_fallback(MatchStart start, size_t landmarks, const std::function<DomainMatch(MatchStart)>& from) {
-  try {
-    return from(start);
-  } catch (const Refused& first) {
-    if (landmarks < 3) invalid(first.message);  // below three landmarks both starts are the turn
+// With `lenient`, both starts again with slivers let turn on the way (`from`'s second
+// argument). Refused by every try: the first one's reason.
+DomainMatch with_fallback(MatchStart start, size_t landmarks, bool lenient,
+                          const std::function<DomainMatch(MatchStart, bool)>& from) {
+  const MatchStart other = start == MatchStart::kMobius ? MatchStart::kRotation : MatchStart::kMobius;
+  std::vector<std::pair<MatchStart, bool>> tries{{start, false}};
+  if (landmarks >= 3) tries.emplace_back(other, false);  // below three landmarks both starts are the turn
+  if (lenient) {
+    tries.emplace_back(start, true);
+    if (landmarks >= 3) tries.emplace_back(other, true);
+  }
+  std::string first;
+  for (const auto& [s, l] : tries) {
     try {
-      return from(start == MatchStart::kMobius ? MatchStart::kRotation : MatchStart::kMobius);
-    } catch (const Refused&) {
-      invalid(first.message);
+      return from(s, l);
+    } catch (const Refused& refused) {
+      if (first.empty()) first = refused.message;
     }
   }
+  invalid(first);
 }
 
 }  // namespace
@@ -615,14 +649,17 @@ DomainMatch match_disks(const mesh::Vertices& points, const mesh::Faces& faces, 
                         MatchStart start) {
   check_vertices(landmarks, points.rows());
   check_distinct(landmarks, 1e-12);
-  return with_fallback(start, landmarks.size(), [&](MatchStart s) { return disks_from(points, faces, landmarks, s); });
+  return with_fallback(start, landmarks.size(), false,
+                       [&](MatchStart s, bool) { return disks_from(points, faces, landmarks, s); });
 }
 
 DomainMatch match_spheres(const mesh::Vertices& points, const mesh::Faces& faces, const std::vector<LandmarkPair>& landmarks,
                           MatchStart start) {
   check_vertices(landmarks, points.rows());
   check_distinct(landmarks, 1e-12);
-  return with_fallback(start, landmarks.size(), [&](MatchStart s) { return spheres_from(points, faces, landmarks, s); });
+  return with_fallback(start, landmarks.size(), true, [&](MatchStart s, bool let_slivers_turn) {
+    return spheres_from(points, faces, landmarks, s, let_slivers_turn);
+  });
 }
 
 }  // namespace brenier::registration

@@ -20,7 +20,12 @@
 //
 // On the sphere the landmarks first fix a rotation (Kabsch), then the same steps run in the
 // stereographic plane seen from a pole far from every landmark, on the vertices inside a
-// circle that holds every landmark path; outside it g is that rotation.
+// circle that holds every landmark path; outside it g is that rotation. Where both starts
+// are refused there, they are tried again with faces that become slivers on the way let turn
+// (a long thin centroid face squeezed by the steps stopped them at any length), and what
+// turned is unfolded afterwards, by local moves and then by the area-preserving maps' barrier
+// untangling (omt/fold_repair.hpp), the landmarks held. Without it, every pair of cow's
+// area-preserving domains was refused (bench/RESULTS.md, session 68).
 //
 // Conformal parameter domains are unique only up to the Moebius group (Thm 2.13 on the disk,
 // sec. 3.2.5 on the sphere), so g can also start from the least-squares Moebius map of the
@@ -72,6 +77,8 @@ struct DomainMatch {
   double start_rms = 0;        // the landmarks' rms distance from their targets after the start
   int steps = 0;               // harmonic steps that moved the landmarks (0: the turn sufficed)
   double max_landmark_error = 0;  // max |g(p_k) - q_k| over the landmarks (round-off)
+  bool slivers_let_turn = false;  // the steps let faces turn that became slivers on the way
+  int mended_faces = 0;           // faces folded after the steps, unfolded afterwards
 };
 
 /// g on the unit disk: `points` (#V by 3, z = 0) the source's domain mesh with `faces`, its

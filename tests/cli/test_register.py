@@ -95,6 +95,8 @@ for args, says in [
     ([lion, sphere], "meshes of different topology cannot be registered"),
     ([lion, lion, "--morph", os.path.join(work, "x.xyz")], "cannot tell the output format"),
     ([sphere, sphere, "--domain", "sphere", "--cut-hole"], "cut-hole applies to the disk domain"),
+    ([sphere, sphere, "--domain", "sphere", "--harmonic-only", "--isometric-sphere"],
+     "--harmonic-only keeps g without the isometric refinement and --isometric-sphere asks for it"),
 ]:
     rc, so, se = run("register", *args)
     check(rc == 2 and says in se and se.count("\n") == 1, f"register {' '.join(map(os.path.basename, args))}: exit {rc}, stderr {se!r}")

@@ -910,6 +910,21 @@ TEST(FoldRepair, UnfoldsAPushedVertexOnTheSphereLocallyAndKeepsAreas) {
     } catch (const Error& e) {
       EXPECT_EQ(e.code(), ErrorCode::kCancelled);
     }
+    // Held where it was pushed (a registration's landmark), the vertex stays exactly there,
+    // and its neighbours are moved around it instead; the bound on the distortion can be
+    // dropped (a registration's g is not area-preserving).
+    X = m.V;
+    X.row(v) = (m.V.row(v) + 2.5 * (m.V.row(w) - m.V.row(v))).normalized();
+    const Eigen::RowVector3d pushed = X.row(v);
+    omt::BarrierRepairScope scope{std::vector<char>(static_cast<size_t>(m.num_vertices()), 0), false};
+    scope.held[static_cast<size_t>(v)] = 1;
+    EXPECT_GT(omt::repair_sphere_folds_by_barrier(m, X, folded, {}, space, scope), 0);
+    EXPECT_EQ(folded, 0);
+    EXPECT_EQ(X.row(v), pushed);
+    EXPECT_EQ(quality::measure(m, X, quality::Target::kSphere).flipped_faces, 0);
+    scope.held.pop_back();
+    EXPECT_ERROR(omt::repair_sphere_folds_by_barrier(m, X, folded, {}, space, scope), ErrorCode::kInvalidArgument,
+                 "not one per vertex");
   }
 }
 

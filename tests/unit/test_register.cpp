@@ -565,6 +565,11 @@ TEST(Register, RefusesMeshesOfDifferentTopologyAndBadLandmarks) {
   r.target_landmarks = {3, 3};
   EXPECT_ERROR(jobs::run_register(as_clean(disk), as_clean(disk), "a.off", "b.off", r), ErrorCode::kInvalidArgument,
                "target landmarks 1 and 2 are the same vertex 3");
+  r.target_landmarks = {1, 3};
+  r.isometric = false;  // --harmonic-only
+  r.isometric_sphere = true;
+  EXPECT_ERROR(jobs::run_register(as_clean(sphere), as_clean(sphere), "a.off", "b.off", r), ErrorCode::kInvalidArgument,
+               "{harmonic_only} keeps g without the isometric refinement and {isometric_sphere} asks for it");
 }
 
 TEST(Register, LandmarksFilesAreReadWithLineNumbers) {
