@@ -246,7 +246,7 @@ RegisterOutcome run_register(const mesh::CleanMesh& source, const mesh::CleanMes
              : registration::match_disks(a.positions, a.surface.F, pairs, start);
   nlohmann::json isometric = {{"applied", false}};
   std::vector<mesh::SurfacePoint> located;  // g's points in the target's domain mesh, where the refinement found them
-  if (r.isometric && (!sphere || r.isometric_sphere)) {
+  if (r.refines()) {
     std::vector<int> fixed;
     for (const auto& p : pairs) fixed.push_back(p.vertex);
     const auto t_iso = std::chrono::steady_clock::now();

@@ -100,11 +100,16 @@ struct RegisterRequest {
   double tolerance = 0;  // the maps' tolerance (0: their default)
   int max_iterations = 200;
   /// After g, move the source's domain points toward an isometry of the two surfaces
-  /// (registration/isometric_refine.hpp), landmarks held, no face turned over: on the disk
-  /// unless `isometric` is off, on the sphere only with `isometric_sphere` too (there it
-  /// helped cow's pairs and set camel's back; bench/RESULTS.md, session 67).
+  /// (registration/isometric_refine.hpp), landmarks held, no face turned over, unless
+  /// `isometric` is off: on the disk, and on the sphere by the area-preserving route; the
+  /// sphere's conformal route only with `isometric_sphere` too (on crowded conformal sphere
+  /// maps it helped cow's pairs and set camel's back; on the OMT domains it lowered every
+  /// median of cow, camel, bear, triceratops, homer and bull; bench/RESULTS.md, sessions 67
+  /// and 68).
   bool isometric = true;
   bool isometric_sphere = false;
+  /// Whether the refinement runs for this request.
+  bool refines() const { return isometric && (domain != Domain::kSphere || method == MapMethod::kAreaPreserving || isometric_sphere); }
 
   static constexpr size_t kMaxLandmarks = 1000;  // each matching step solves a dense (L+3)^2 system
   void validate() const;

@@ -291,7 +291,8 @@ TEST(RealRegister, CowOntoAStretchedRemeshedCopyByTheSpheresAreaPreservingRoute)
     r.method = method;
     r.source_landmarks = p.source_landmarks;
     r.target_landmarks = p.target_landmarks;
-    r.isometric_sphere = refined;
+    r.isometric = refined;
+    r.isometric_sphere = refined && method == jobs::MapMethod::kConformal;
     const jobs::RegisterOutcome out = jobs::run_register(mesh::clean(p.source), mesh::clean(p.target), "source", "target", r, 2);
     report = out.report;
     std::vector<registration::SurfacePoint> found;

@@ -527,6 +527,7 @@ TEST(Register, CorrespondingPolesMakeTheSphereOmtMapsOfTwoMeshingsAgree) {
   rr.method = jobs::MapMethod::kAreaPreserving;
   rr.source_landmarks = p.source_landmarks;
   rr.target_landmarks = p.target_landmarks;
+  rr.isometric = false;  // g alone (--harmonic-only)
   const jobs::RegisterOutcome out = jobs::run_register(as_clean(p.source), as_clean(p.target), "source", "target", rr);
   EXPECT_EQ(out.report["domain_folded_faces"], 0);
   std::vector<SurfacePoint> found;
@@ -534,10 +535,19 @@ TEST(Register, CorrespondingPolesMakeTheSphereOmtMapsOfTwoMeshingsAgree) {
   std::vector<double> e = registration_errors(p, found, 300);
   std::nth_element(e.begin(), e.begin() + static_cast<long>(e.size() / 2), e.end());
   EXPECT_LT(e[e.size() / 2], 0.015);  // 0.0087 measured; the conformal route 0.0074
-  EXPECT_FALSE(out.report["isometric"]["applied"].get<bool>());  // off on the sphere unless asked
+  EXPECT_FALSE(out.report["isometric"]["applied"].get<bool>());
 
-  // Asked for, the refinement lowers its energy, folds nothing and keeps the error.
-  rr.isometric_sphere = true;
+  // The sphere's conformal route leaves g alone unless asked.
+  jobs::RegisterRequest conformal = rr;
+  conformal.method = jobs::MapMethod::kConformal;
+  conformal.isometric = true;
+  EXPECT_FALSE(jobs::run_register(as_clean(p.source), as_clean(p.target), "source", "target", conformal)
+                   .report["isometric"]["applied"]
+                   .get<bool>());
+
+  // By default the area-preserving route refines g: it lowers its energy, folds nothing and
+  // keeps the error.
+  rr.isometric = true;
   const jobs::RegisterOutcome refined = jobs::run_register(as_clean(p.source), as_clean(p.target), "source", "target", rr);
   const nlohmann::json& iso = refined.report["isometric"];
   ASSERT_TRUE(iso["applied"].get<bool>());

@@ -93,8 +93,9 @@ void RegisterFlags::add_to(CLI::App* cmd) {
                 "keep g as Alg. 7 makes it (harmonic, held by the landmarks), without moving it toward an "
                 "isometry of the two surfaces afterwards");
   cmd->add_flag("--isometric-sphere", r.isometric_sphere,
-                "sphere: move g toward an isometry too (on the disk it is by default; on the sphere it helps some "
-                "pairs and sets others back)");
+                "sphere, conformal route: move g toward an isometry too (on the disk and the sphere's "
+                "area-preserving route it is by default; on crowded conformal sphere maps it helps some pairs and "
+                "sets others back)");
 }
 
 jobs::RegisterRequest RegisterFlags::resolve() const {

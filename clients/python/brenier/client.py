@@ -352,7 +352,8 @@ class Client:
         area-preserving or conformal maps) and waits for it. `landmarks`: a pair of
         sequences of input vertex numbers, (source's, target's), paired by order.
         `harmonic_only`: keep g as Alg. 7 makes it, without moving it toward an isometry of the
-        two surfaces; `isometric_sphere`: on the sphere, move it so too (the disk's default)."""
+        two surfaces; `isometric_sphere`: on the sphere's conformal route, move it so too (the
+        default on the disk and on the sphere's area-preserving route)."""
         src, tgt = ([], []) if landmarks is None else (list(landmarks[0]), list(landmarks[1]))
         spec = pb.RegisterSpec(source=self.mesh_id(source), target=self.mesh_id(target),
                                domain=_pick(_DOMAINS, domain, "domain"), method=_pick(_MAP_METHODS, method, "method"),
