@@ -98,7 +98,6 @@ TEST(Spec, RegisterRequestsSurviveTheWire) {
   r.tolerance = 1e-7;
   r.max_iterations = 55;
   r.isometric = false;
-  r.isometric_sphere = true;
   pb::RegisterSpec s;
   spec::to_proto(r, &s);
   const jobs::RegisterRequest back = spec::from_proto(s);
@@ -110,12 +109,26 @@ TEST(Spec, RegisterRequestsSurviveTheWire) {
   EXPECT_EQ(back.max_iterations, r.max_iterations);
   EXPECT_FALSE(back.isometric);
   EXPECT_TRUE(s.harmonic_only());
-  EXPECT_TRUE(back.isometric_sphere);
-  // An old client's spec: refined on the disk, not on the sphere, by the OMT route.
+  EXPECT_FALSE(back.isometric_sphere);
+  r.isometric = true;
+  r.isometric_sphere = true;
+  s = pb::RegisterSpec();
+  spec::to_proto(r, &s);
+  const jobs::RegisterRequest refined = spec::from_proto(s);
+  EXPECT_TRUE(refined.isometric);
+  EXPECT_FALSE(s.harmonic_only());
+  EXPECT_TRUE(refined.isometric_sphere);
+  EXPECT_TRUE(refined.refines());
+  // Both together contradict each other: refused, naming both fields.
+  s.set_harmonic_only(true);
+  EXPECT_ERROR(spec::from_proto(s), ErrorCode::kInvalidArgument,
+               "{harmonic_only} keeps g without the isometric refinement and {isometric_sphere} asks for it");
+  // An old client's spec: the OMT route, refined on the disk and on the sphere.
   const jobs::RegisterRequest old = spec::from_proto(pb::RegisterSpec());
   EXPECT_TRUE(old.isometric);
   EXPECT_FALSE(old.isometric_sphere);
   EXPECT_EQ(old.method, jobs::MapMethod::kAreaPreserving);
+  EXPECT_TRUE(old.refines());
 }
 
 TEST(Spec, BadSpecsNameTheirField) {
