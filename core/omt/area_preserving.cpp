@@ -427,16 +427,14 @@ AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPrese
       OmtResult stage;
       start = spread_once(m, start, nu, deferred, opt.omt, ++out.spreading_stages, toward, stage);
       out.spreading_newton_iterations += stage.iterations;
-      std::vector<char> none(nv, 0);
-      int left = 0;
       // The Tutte steps may not lengthen a vertex's longest edge here: where the stage tore
       // faces open, a vertex mirrored across one lands across the sphere and tears its
       // other faces, which the next transport keeps (man kept 4 folds; with this, none).
-      conformal::untangle(m, start, true, none, left, 100, /*keep_longest_edges=*/true);
-      if (left > 0 && repair_stages) {
-        repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress);
-        if (left > 0) repair_sphere_folds_by_barrier(m, start, left, opt.repair_progress, BarrierSpace::kChart);
-      }
+      SphereUnfold how;
+      how.keep_longest_edges = true;
+      how.barrier = repair_stages;
+      how.keep_going = opt.repair_progress;
+      unfold_sphere_map(m, start, how);
     }
     transport_from(start);
   };

@@ -370,4 +370,15 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
   return moved;
 }
 
+int unfold_sphere_map(const mesh::TriMesh& m, mesh::Vertices& X, const SphereUnfold& how) {
+  const std::vector<char> held = how.scope.held.empty() ? std::vector<char>(m.num_vertices(), 0) : how.scope.held;
+  int left = 0;
+  conformal::untangle(m, X, true, held, left, 100, how.keep_longest_edges);
+  if (left > 0 && how.barrier) {
+    repair_sphere_folds_by_barrier(m, X, left, how.keep_going, BarrierSpace::kSphere, how.scope);
+    if (left > 0) repair_sphere_folds_by_barrier(m, X, left, how.keep_going, BarrierSpace::kChart, how.scope);
+  }
+  return left;
+}
+
 }  // namespace brenier::omt

@@ -57,4 +57,20 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
                                    const std::function<bool(int round, int folds)>& keep_going = {},
                                    BarrierSpace space = BarrierSpace::kSphere, const BarrierRepairScope& scope = {});
 
+/// How unfold_sphere_map goes about it.
+struct SphereUnfold {
+  BarrierRepairScope scope;        // held vertices (also held by the local moves) and the distortion bound
+  bool keep_longest_edges = false; // conformal::untangle's: no local move lengthens a vertex's longest edge
+  bool barrier = true;             // after the local moves, the barrier repair; false: local moves only
+  std::function<bool(int round, int folds)> keep_going;  // as repair_sphere_folds_by_barrier's
+};
+
+/// Unfolds a map X of closed genus-0 `m` onto the unit sphere in the order that mends the
+/// most for the least: local moves (conformal::untangle: a corner mirrored across its
+/// opposite edge, or a Tutte step), then for what they leave the barrier repair on the
+/// sphere, then in charts, where a region cannot wrap around the sphere. Returns the folds
+/// left. One place for the sequence the area-preserving maps' spreading stages and the
+/// registration's sphere domains (register/domain_match.cpp) both run.
+int unfold_sphere_map(const mesh::TriMesh& m, mesh::Vertices& X, const SphereUnfold& how = {});
+
 }  // namespace brenier::omt

@@ -246,7 +246,7 @@ struct Continuation {
     // before the mesh around it folds. The OMT centroid maps have them where three cell
     // centroids fall nearly in line (bear's sphere map: edges 0.07, 0.11, 0.18, height 1e-4;
     // every one of its pairs was refused for such a face, with the landmarks 0.02 from their
-    // targets). The caller mends the ones that turned (mend_slivers) or refuses.
+    // targets). The caller mends the ones that turned (mend_folds) or refuses.
     for (Eigen::Index f = 0; f < F.rows(); ++f)
       if (sliver(X, f)) sign0[static_cast<size_t>(f)] = 0;
     int steps = 0;
@@ -281,34 +281,31 @@ struct Continuation {
   }
 };
 
-// The slivers a continuation let turn over (Continuation::run), unfolded by local moves with
-// the landmarks and `fixed` held (conformal::untangle: a corner mirrored across its opposite
-// edge, or a Tutte step); on the sphere what that leaves by the barrier untangling of the
-// area-preserving maps (omt/fold_repair.hpp) against the faces' own shapes before the mend,
-// the same vertices held. On cow's area-preserving domains the local moves left 2-4 folds
-// that the barrier mended (bench/RESULTS.md, session 68). A fold that stays is refused,
-// naming the landmarks nearest it. Returns the faces that were folded before the mend.
-int mend_slivers(const mesh::Faces& faces, mesh::Vertices& mapped, bool sphere, std::vector<char> fixed,
-                 const std::vector<LandmarkPair>& landmarks) {
+// The folds of g's map after its continuation (Continuation::run let slivers turn over, or
+// the steps left some), unfolded with the landmarks and `fixed` held: on the disk by local
+// moves (conformal::untangle: a corner mirrored across its opposite edge, or a Tutte step);
+// on the sphere by omt::unfold_sphere_map, whose barrier untangling runs against the faces'
+// own shapes before the mend. On cow's area-preserving domains the local moves left 2-4
+// folds that the barrier mended (bench/RESULTS.md, session 68). A fold that stays is
+// refused, naming the landmarks nearest it. Returns the faces that were folded before.
+int mend_folds(const mesh::Faces& faces, mesh::Vertices& mapped, bool sphere, std::vector<char> fixed,
+               const std::vector<LandmarkPair>& landmarks) {
   const mesh::TriMesh m{mapped, faces};
-  auto folds = [&] {
-    int n = 0;
-    for (int f = 0; f < m.num_faces(); ++f) n += conformal::face_folded(m, mapped, f, sphere);
-    return n;
-  };
-  const int before = folds();
+  int before = 0;
+  for (int f = 0; f < m.num_faces(); ++f) before += conformal::face_folded(m, mapped, f, sphere);
   if (before == 0) return 0;
   for (const auto& l : landmarks) fixed[static_cast<size_t>(l.vertex)] = 1;
   int left = 0;
-  conformal::untangle(m, mapped, sphere, fixed, left);
-  if (sphere && left > 0) {
-    const omt::BarrierRepairScope scope{fixed, false};
-    omt::repair_sphere_folds_by_barrier(m, mapped, left, {}, omt::BarrierSpace::kSphere, scope);
-    if (left > 0) omt::repair_sphere_folds_by_barrier(m, mapped, left, {}, omt::BarrierSpace::kChart, scope);
+  if (sphere) {
+    omt::SphereUnfold how;
+    how.scope = {fixed, /*bound_distortion=*/false};
+    left = omt::unfold_sphere_map(m, mapped, how);
+  } else {
+    conformal::untangle(m, mapped, false, fixed, left);
   }
+  if (left == 0) return before;
   int f = 0;
   while (f < m.num_faces() && !conformal::face_folded(m, mapped, f, sphere)) ++f;
-  if (f == m.num_faces()) return before;
   std::vector<std::string> names;
   std::vector<double> distance;
   for (const auto& l : landmarks) {
@@ -507,7 +504,7 @@ DomainMatch disks_from(const mesh::Vertices& points, const mesh::Faces& faces, c
   out.steps = c.run(targets);
   out.mapped = mesh::Vertices::Zero(points.rows(), 3);
   for (Eigen::Index i = 0; i < points.rows(); ++i) out.mapped.row(i).head<2>() = c.X[static_cast<size_t>(i)].transpose();
-  out.mended_faces = mend_slivers(faces, out.mapped, false, boundary, landmarks);
+  out.mended_faces = mend_folds(faces, out.mapped, false, boundary, landmarks);
   for (const auto& l : landmarks)
     out.max_landmark_error = std::max(out.max_landmark_error, (out.mapped.row(l.vertex).transpose() - Eigen::Vector3d(l.q.x(), l.q.y(), 0)).norm());
   return out;
@@ -611,7 +608,7 @@ DomainMatch spheres_from(const mesh::Vertices& points, const mesh::Faces& faces,
     for (size_t i = 0; i < n; ++i)
       if (finite[i])
         out.mapped.row(static_cast<Eigen::Index>(i)) = (Q.transpose() * unstereo(c.X[i])).transpose();
-    out.mended_faces = mend_slivers(faces, out.mapped, true, c.skip_vertex, landmarks);
+    out.mended_faces = mend_folds(faces, out.mapped, true, c.skip_vertex, landmarks);
   }
   for (size_t k = 0; k < landmarks.size(); ++k)
     out.max_landmark_error = std::max(out.max_landmark_error, (out.mapped.row(landmarks[k].vertex).transpose() - q[k]).norm());
