@@ -8,7 +8,7 @@ flipped faces, the sphere's covering degree, the refinement's Newton steps and s
 the map's total seconds. The last lines count the meshes meeting the issue's bar (mean <= 0.02,
 p95 <= 0.1, no flip, degree 1).
 
-    bench/bench_area_refinement.py build/tools/brenier-compute data/meshes [--max-vertices N]
+    bench/bench_area_refinement.py build/tools/brenier-compute data/meshes [--max-vertices N] [--only sphere]
 """
 import argparse
 import json
@@ -28,6 +28,7 @@ def main():
     ap.add_argument("folder")
     ap.add_argument("--max-vertices", type=int, default=200000)
     ap.add_argument("--timeout", type=float, default=600)
+    ap.add_argument("--only", choices=("disk", "sphere"), help="only the meshes of this class")
     a = ap.parse_args()
     rows, met, tried = [], 0, 0
     print("| mesh | class | V | before mean / p95 | after mean / p95 / max | flips | degree | Newton | refine s | map s |")
@@ -39,7 +40,7 @@ def main():
         if rc != 0:
             continue
         info = json.loads(out)
-        if not info.get("valid") or info.get("class") not in ("disk", "sphere"):
+        if not info.get("valid") or info.get("class") not in ((a.only,) if a.only else ("disk", "sphere")):
             continue
         if info["vertices"] > a.max_vertices:
             continue
