@@ -306,6 +306,7 @@ int mend_folds(const mesh::Faces& faces, mesh::Vertices& mapped, bool sphere, st
   if (left == 0) return before;
   int f = 0;
   while (f < m.num_faces() && !conformal::face_folded(m, mapped, f, sphere)) ++f;
+  if (f == m.num_faces()) return before;  // the counts use the same test; kept so a change there cannot read past F
   std::vector<std::string> names;
   std::vector<double> distance;
   for (const auto& l : landmarks) {
