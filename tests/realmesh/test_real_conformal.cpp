@@ -64,6 +64,16 @@ void expect_area_distortion_below(std::initializer_list<const char*> names, Map 
   }
 }
 
+// The median normalized geodesic error (registration_errors, 300 samples) of a
+// registration's correspondence against its ground-truth pair.
+double median_error(const registration::TruthPair& p, const jobs::RegisterOutcome& out) {
+  std::vector<registration::SurfacePoint> found;
+  for (const auto& [f, w] : out.target_points) found.push_back({f, w});
+  std::vector<double> e = registration::registration_errors(p, found, 300);
+  std::nth_element(e.begin(), e.begin() + static_cast<long>(e.size() / 2), e.end());
+  return e[e.size() / 2];
+}
+
 }  // namespace
 
 TEST(RealConformal, EveryDiskMeshMapsOntoTheDiskUnfolded) {
@@ -265,11 +275,7 @@ TEST(RealRegister, BearOntoARemeshedBentCopyByBothRoutesOfTheSphere) {
     const jobs::RegisterOutcome out = jobs::run_register(mesh::clean(p.source), mesh::clean(p.target), "source", "target", r, 2);
     EXPECT_EQ(out.report["domain_folded_faces"], 0);
     EXPECT_LT(out.report["match"]["max_landmark_error"].get<double>(), 1e-9);
-    std::vector<registration::SurfacePoint> found;
-    for (const auto& [f, w] : out.target_points) found.push_back({f, w});
-    std::vector<double> e = registration::registration_errors(p, found, 300);
-    std::nth_element(e.begin(), e.begin() + static_cast<long>(e.size() / 2), e.end());
-    EXPECT_LT(e[e.size() / 2], 0.012);
+    EXPECT_LT(median_error(p, out), 0.012);
   }
 }
 
@@ -286,7 +292,7 @@ TEST(RealRegister, CowOntoAStretchedRemeshedCopyByTheSpheresAreaPreservingRoute)
   mesh::CleanMesh cm = mesh::load_mesh((fs::path(BRENIER_TEST_DATA_DIR) / "cow.off").string());
   ASSERT_TRUE(cm.valid());
   const registration::TruthPair p = registration::make_truth_pair(cm.mesh, registration::Deformation::kStretch, 0.2, 1.0, 6);
-  auto median_error = [&](jobs::MapMethod method, bool refined, nlohmann::json& report) {
+  auto route_median = [&](jobs::MapMethod method, bool refined, nlohmann::json& report) {
     jobs::RegisterRequest r;
     r.domain = jobs::Domain::kSphere;
     r.method = method;
@@ -296,24 +302,20 @@ TEST(RealRegister, CowOntoAStretchedRemeshedCopyByTheSpheresAreaPreservingRoute)
     r.isometric_sphere = refined && method == jobs::MapMethod::kConformal;
     const jobs::RegisterOutcome out = jobs::run_register(mesh::clean(p.source), mesh::clean(p.target), "source", "target", r, 2);
     report = out.report;
-    std::vector<registration::SurfacePoint> found;
-    for (const auto& [f, w] : out.target_points) found.push_back({f, w});
-    std::vector<double> e = registration::registration_errors(p, found, 300);
-    std::nth_element(e.begin(), e.begin() + static_cast<long>(e.size() / 2), e.end());
-    return e[e.size() / 2];
+    return median_error(p, out);
   };
   nlohmann::json g_alone, refined, conformal;
-  const double omt_g = median_error(jobs::MapMethod::kAreaPreserving, false, g_alone);
+  const double omt_g = route_median(jobs::MapMethod::kAreaPreserving, false, g_alone);
   EXPECT_TRUE(g_alone["match"]["slivers_let_turn"].get<bool>());
   EXPECT_GT(g_alone["match"]["mended_faces"].get<int>(), 0);
   EXPECT_EQ(g_alone["domain_folded_faces"], 0);
   EXPECT_LT(g_alone["match"]["max_landmark_error"].get<double>(), 1e-9);
   EXPECT_LT(omt_g, 0.05);
-  const double omt = median_error(jobs::MapMethod::kAreaPreserving, true, refined);
+  const double omt = route_median(jobs::MapMethod::kAreaPreserving, true, refined);
   EXPECT_EQ(refined["domain_folded_faces"], 0);
   EXPECT_LT(refined["isometric"]["energy_after"].get<double>(), refined["isometric"]["energy_before"].get<double>());
   EXPECT_LT(omt, 0.03) << "g alone " << omt_g;
-  const double conf = median_error(jobs::MapMethod::kConformal, true, conformal);
+  const double conf = route_median(jobs::MapMethod::kConformal, true, conformal);
   EXPECT_LT(omt, 0.6 * conf);
 }
 
@@ -339,11 +341,7 @@ TEST(RealRegister, DinoOntoATwistedRemeshedCopyByTheSpheresAreaPreservingRoute) 
   }
   EXPECT_EQ(out.report["domain_folded_faces"], 0);
   EXPECT_LT(out.report["match"]["max_landmark_error"].get<double>(), 1e-9);
-  std::vector<registration::SurfacePoint> found;
-  for (const auto& [f, w] : out.target_points) found.push_back({f, w});
-  std::vector<double> e = registration::registration_errors(p, found, 300);
-  std::nth_element(e.begin(), e.begin() + static_cast<long>(e.size() / 2), e.end());
-  EXPECT_LT(e[e.size() / 2], 0.05);
+  EXPECT_LT(median_error(p, out), 0.05);
 }
 
 TEST(RealRegister, LionHeadOntoATwistedRemeshedCopyIsRefinedTowardTheIsometry) {
@@ -370,11 +368,7 @@ TEST(RealRegister, LionHeadOntoATwistedRemeshedCopyIsRefinedTowardTheIsometry) {
     if (isometric) {
       EXPECT_LT(out.report["isometric"]["energy_after"].get<double>(), out.report["isometric"]["energy_before"].get<double>());
     }
-    std::vector<registration::SurfacePoint> found;
-    for (const auto& [f, w] : out.target_points) found.push_back({f, w});
-    std::vector<double> e = registration::registration_errors(p, found, 300);
-    std::nth_element(e.begin(), e.begin() + static_cast<long>(e.size() / 2), e.end());
-    median[isometric] = e[e.size() / 2];
+    median[isometric] = median_error(p, out);
   }
   EXPECT_LT(median[1], 0.02) << "g alone: " << median[0];
   EXPECT_LT(median[1], 0.8 * median[0]);
