@@ -379,6 +379,9 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
 }
 
 int unfold_sphere_map(const mesh::TriMesh& m, mesh::Vertices& X, const SphereUnfold& how) {
+  // Checked before the local moves, which index the flags without looking.
+  if (!how.scope.held.empty() && static_cast<int>(how.scope.held.size()) != m.num_vertices())
+    invalid("the held vertices' flags are not one per vertex");
   const std::vector<char> held = how.scope.held.empty() ? std::vector<char>(m.num_vertices(), 0) : how.scope.held;
   int left = 0;
   conformal::untangle(m, X, true, held, left, 100, how.keep_longest_edges);

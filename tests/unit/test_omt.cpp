@@ -925,6 +925,9 @@ TEST(FoldRepair, UnfoldsAPushedVertexOnTheSphereLocallyAndKeepsAreas) {
     scope.held.pop_back();
     EXPECT_ERROR(omt::repair_sphere_folds_by_barrier(m, X, folded, {}, space, scope), ErrorCode::kInvalidArgument,
                  "not one per vertex");
+    omt::SphereUnfold how;
+    how.scope = scope;  // refused before its local moves read the flags
+    EXPECT_ERROR(omt::unfold_sphere_map(m, X, how), ErrorCode::kInvalidArgument, "not one per vertex");
   }
 }
 
