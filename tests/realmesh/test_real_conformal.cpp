@@ -288,7 +288,10 @@ TEST(RealRegister, CowOntoAStretchedRemeshedCopyByTheSpheresAreaPreservingRoute)
   // and with the sphere's isometric refinement the OMT route errs far less than the conformal
   // route, whose maps differ where the stretch is not conformal (measured 0.0212 against
   // 0.0645, g alone 0.0386 against 0.0738, bench/RESULTS.md, session 68; after session 69's
-  // faster fold repair 0.0234, g alone 0.0384).
+  // faster fold repair 0.0234, g alone 0.0384). Since session 70 the centroid maps' local
+  // moves no longer throw vertices across the sphere, and this pair's steps need no sliver
+  // let turn (g alone 0.0360, 7 faces mended); DomainMatch.ASliverInTheDomainMeshDoesNotBlock
+  // TheLandmarks covers that rule.
   mesh::CleanMesh cm = mesh::load_mesh((fs::path(BRENIER_TEST_DATA_DIR) / "cow.off").string());
   ASSERT_TRUE(cm.valid());
   const registration::TruthPair p = registration::make_truth_pair(cm.mesh, registration::Deformation::kStretch, 0.2, 1.0, 6);
@@ -306,7 +309,6 @@ TEST(RealRegister, CowOntoAStretchedRemeshedCopyByTheSpheresAreaPreservingRoute)
   };
   nlohmann::json g_alone, refined, conformal;
   const double omt_g = route_median(jobs::MapMethod::kAreaPreserving, false, g_alone);
-  EXPECT_TRUE(g_alone["match"]["slivers_let_turn"].get<bool>());
   EXPECT_GT(g_alone["match"]["mended_faces"].get<int>(), 0);
   EXPECT_EQ(g_alone["domain_folded_faces"], 0);
   EXPECT_LT(g_alone["match"]["max_landmark_error"].get<double>(), 1e-9);
