@@ -344,10 +344,10 @@ std::optional<Eigen::Vector3d> chosen_pole(const mesh::TriMesh& m, const mesh::V
 // map is bijective. With `keep_longest_edges` no local move may lengthen a vertex's longest
 // edge. Without it, where the centroids fold in crowded legs, mirror moves across slivers walk
 // vertices across the sphere: camel's 10,911-vertex copy came out of them with 205 faces whose
-// edges span over 0.9 (none before), folded and unfolded ones whose signed areas cancel, so the
-// degree stayed 1 while no barrier region around them could be untangled (their enclosed area
-// in the chart was negative); the try ended 7 folds short and the next started from scratch.
-// With it, that try comes out bijective (bench/RESULTS.md, session 70).
+// edges span over 0.9 (none in its centroid map), folded and unfolded ones whose signed areas
+// cancel, so the degree stayed 1 while no barrier region around them could be untangled
+// (their enclosed area in the chart was negative); the try ended 7 folds short and the next
+// started from scratch. With it, that try comes out bijective (bench/RESULTS.md, session 70).
 bool finish_sphere_map(const mesh::TriMesh& m, const mesh::Vertices& X, const AreaPreservingOptions& opt,
                        bool keep_longest_edges, AreaPreservingMap& out) {
   const int nv = m.num_vertices();

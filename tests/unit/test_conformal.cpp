@@ -321,3 +321,40 @@ TEST(DiskTargets, InscribedPolygonTurningAnglesAndGaussBonnet) {
     EXPECT_NEAR(turning[i], std::arg((q[(i + 1) % 4] - q[i]) / (q[i] - q[(i + 3) % 4])), 1e-10) << i;
   EXPECT_LT(tau[3], 0.0) << "the long edge subtends the major arc";
 }
+
+TEST(Untangle, KeepingLongestEdgesNeverLengthensTheMapsLongestEdge) {
+  // conformal::untangle's local moves (a corner mirrored across its opposite edge, or a Tutte
+  // step) repeated over many rounds can carry a vertex far from a crowded cluster: on camel's
+  // centroid maps they threw vertices across the sphere (faces with chords over 0.9,
+  // bench/RESULTS.md, session 70). With keep_longest_edges no move lengthens the moving
+  // vertex's longest edge, so no edge can grow past the longest there was: the map's longest
+  // edge never grows. A cluster of an icosphere scrambled inside a small cap, on the sphere.
+  mesh::TriMesh m = mesh::make_icosphere(3);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(-1, 1);
+  const Eigen::Vector3d c = m.V.row(0).transpose();
+  const Eigen::Vector3d e1 = c.unitOrthogonal(), e2 = c.cross(e1);
+  mesh::Vertices X = m.V;
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if ((m.V.row(v).transpose() - c).norm() < 0.6)  // about four rings
+      X.row(v) = (c + 0.3 * u(rng) * e1 + 0.3 * u(rng) * e2).normalized().transpose();
+  auto longest_edge = [&](const mesh::Vertices& Y) {
+    double l = 0;
+    for (int f = 0; f < m.num_faces(); ++f)
+      for (int k = 0; k < 3; ++k) l = std::max(l, (Y.row(m.F(f, k)) - Y.row(m.F(f, (k + 1) % 3))).norm());
+    return l;
+  };
+  int before = 0;
+  for (int f = 0; f < m.num_faces(); ++f) before += face_folded(m, X, f, true);
+  ASSERT_GT(before, 40) << "the scrambled cap folds";
+  const double longest = longest_edge(X);
+  const std::vector<char> fixed(m.num_vertices(), 0);
+  mesh::Vertices kept = X, loose = X;
+  int left_kept = 0, left_loose = 0;
+  untangle(m, kept, true, fixed, left_kept, 100, /*keep_longest_edges=*/true);
+  untangle(m, loose, true, fixed, left_loose, 100, /*keep_longest_edges=*/false);
+  // Measured: 51 folds -> 9 kept, 7 free; longest edge 0.927 -> 0.792 kept, 1.967 free.
+  EXPECT_LE(longest_edge(kept), longest * (1 + 1e-12));
+  EXPECT_LT(left_kept, before);
+  EXPECT_GT(longest_edge(loose), 1.5) << "here the free moves carry a vertex across the sphere, which the rule prevents";
+}
