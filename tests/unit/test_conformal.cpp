@@ -353,8 +353,9 @@ TEST(Untangle, KeepingLongestEdgesNeverLengthensTheMapsLongestEdge) {
   int left_kept = 0, left_loose = 0;
   untangle(m, kept, true, fixed, left_kept, 100, /*keep_longest_edges=*/true);
   untangle(m, loose, true, fixed, left_loose, 100, /*keep_longest_edges=*/false);
-  // Measured: 51 folds -> 9 kept, 7 free; longest edge 0.927 -> 0.792 kept, 1.967 free.
+  // Measured: 51 folds -> 9 kept, 7 free; longest edge 0.927 -> 0.792 kept, 1.967 free (gcc;
+  // clang's round-off takes the free moves elsewhere: 1.335).
   EXPECT_LE(longest_edge(kept), longest * (1 + 1e-12));
   EXPECT_LT(left_kept, before);
-  EXPECT_GT(longest_edge(loose), 1.5) << "here the free moves carry a vertex across the sphere, which the rule prevents";
+  EXPECT_GT(longest_edge(loose), 1.2 * longest) << "here the free moves lengthen the longest edge, which the rule prevents";
 }
