@@ -354,24 +354,18 @@ bool finish_sphere_map(const mesh::TriMesh& m, const mesh::Vertices& X, const Ar
   if (opt.t > 0)
     for (int v = 0; v < nv; ++v)
       out.positions.row(v) = ((1 - opt.t) * out.positions.row(v) + opt.t * X.row(v)).normalized();
-  std::vector<char> fixed(nv, 0);
-  out.relaxed_vertices = conformal::untangle(m, out.positions, true, fixed, out.folded_faces, 100, keep_longest_edges);
-  out.degree = quality::sphere_degree(m.F, out.positions);
-  if (out.folded_faces > 0 && quality::covers_once(out.degree)) {
-    out.relaxed_vertices += repair_sphere_folds_by_barrier(m, out.positions, out.folded_faces, opt.repair_progress);
-    out.degree = quality::sphere_degree(m.F, out.positions);
-  }
-  // Then in charts, where a region cannot wrap (diplodocus: 4 folds left on the sphere).
-  // A pass tries each folded face once; a fold that resisted while its neighbours were
-  // folded too can give way once they are not, so passes repeat while they mend something.
-  // (The chart repair alone, without the sphere's first, left u with 9 folds and dino 4.)
-  for (int pass = 0; pass < 4 && out.folded_faces > 0 && quality::covers_once(out.degree); ++pass) {
-    const int before = out.folded_faces;
-    out.relaxed_vertices +=
-        repair_sphere_folds_by_barrier(m, out.positions, out.folded_faces, opt.repair_progress, BarrierSpace::kChart);
-    out.degree = quality::sphere_degree(m.F, out.positions);
-    if (out.folded_faces == before) break;
-  }
+  // Each barrier step only while the map covers the sphere once: one that wraps around it
+  // more than once is reported as it is. Up to four chart passes (u kept 9 folds and dino 4
+  // with the chart repair alone, without the sphere's first).
+  SphereUnfold how;
+  how.keep_longest_edges = keep_longest_edges;
+  how.only_covering_once = true;
+  how.chart_passes = 4;
+  how.keep_going = opt.repair_progress;
+  const SphereUnfolded left = unfold_sphere_map(m, out.positions, how);
+  out.relaxed_vertices = left.moved;
+  out.folded_faces = left.folds;
+  out.degree = left.degree;
   return out.folded_faces == 0 && quality::covers_once(out.degree);
 }
 

@@ -378,18 +378,26 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
   return moved;
 }
 
-int unfold_sphere_map(const mesh::TriMesh& m, mesh::Vertices& X, const SphereUnfold& how) {
+SphereUnfolded unfold_sphere_map(const mesh::TriMesh& m, mesh::Vertices& X, const SphereUnfold& how) {
   // Checked before the local moves, which index the flags without looking.
   if (!how.scope.held.empty() && static_cast<int>(how.scope.held.size()) != m.num_vertices())
     invalid("the held vertices' flags are not one per vertex");
   const std::vector<char> held = how.scope.held.empty() ? std::vector<char>(m.num_vertices(), 0) : how.scope.held;
-  int left = 0;
-  conformal::untangle(m, X, true, held, left, 100, how.keep_longest_edges);
-  if (left > 0 && how.barrier) {
-    repair_sphere_folds_by_barrier(m, X, left, how.keep_going, BarrierSpace::kSphere, how.scope);
-    if (left > 0) repair_sphere_folds_by_barrier(m, X, left, how.keep_going, BarrierSpace::kChart, how.scope);
+  SphereUnfolded r;
+  r.moved = conformal::untangle(m, X, true, held, r.folds, 100, how.keep_longest_edges);
+  r.degree = quality::sphere_degree(m.F, X);
+  auto may_repair = [&] { return how.barrier && r.folds > 0 && (!how.only_covering_once || quality::covers_once(r.degree)); };
+  if (may_repair()) {
+    r.moved += repair_sphere_folds_by_barrier(m, X, r.folds, how.keep_going, BarrierSpace::kSphere, how.scope);
+    r.degree = quality::sphere_degree(m.F, X);
   }
-  return left;
+  for (int pass = 0; pass < how.chart_passes && may_repair(); ++pass) {
+    const int before = r.folds;
+    r.moved += repair_sphere_folds_by_barrier(m, X, r.folds, how.keep_going, BarrierSpace::kChart, how.scope);
+    r.degree = quality::sphere_degree(m.F, X);
+    if (r.folds == before) break;
+  }
+  return r;
 }
 
 }  // namespace brenier::omt

@@ -62,15 +62,27 @@ struct SphereUnfold {
   BarrierRepairScope scope;        // held vertices (also held by the local moves) and the distortion bound
   bool keep_longest_edges = false; // conformal::untangle's: no local move lengthens a vertex's longest edge
   bool barrier = true;             // after the local moves, the barrier repair; false: local moves only
+  bool only_covering_once = false; // each barrier step only while the map covers the sphere once (degree 1)
+  int chart_passes = 1;            // chart passes, repeated while a pass mends something
   std::function<bool(int round, int folds)> keep_going;  // as repair_sphere_folds_by_barrier's
+};
+
+/// What unfold_sphere_map left.
+struct SphereUnfolded {
+  int folds = 0;      // folded faces left
+  int moved = 0;      // vertices moved, summed over the local moves and the barrier's regions
+  double degree = 0;  // the map's covering count (quality::sphere_degree) at the end
 };
 
 /// Unfolds a map X of closed genus-0 `m` onto the unit sphere in the order that mends the
 /// most for the least: local moves (conformal::untangle: a corner mirrored across its
 /// opposite edge, or a Tutte step), then for what they leave the barrier repair on the
-/// sphere, then in charts, where a region cannot wrap around the sphere. Returns the folds
-/// left. One place for the sequence the area-preserving maps' spreading stages and the
-/// registration's sphere domains (register/domain_match.cpp) both run.
-int unfold_sphere_map(const mesh::TriMesh& m, mesh::Vertices& X, const SphereUnfold& how = {});
+/// sphere, then in charts, where a region cannot wrap around the sphere (diplodocus' centroid
+/// map kept 4 folds on the sphere). A chart pass tries each folded face once; a fold that
+/// resisted while its neighbours were folded too can give way once they are not, so up to
+/// `chart_passes` passes run while each mends something. One place for the sequence the
+/// area-preserving maps (each try's finish and the spreading stages) and the registration's
+/// sphere domains (register/domain_match.cpp) run.
+SphereUnfolded unfold_sphere_map(const mesh::TriMesh& m, mesh::Vertices& X, const SphereUnfold& how = {});
 
 }  // namespace brenier::omt

@@ -299,7 +299,7 @@ int mend_folds(const mesh::Faces& faces, mesh::Vertices& mapped, bool sphere, st
   if (sphere) {
     omt::SphereUnfold how;
     how.scope = {fixed, /*bound_distortion=*/false};
-    left = omt::unfold_sphere_map(m, mapped, how);
+    left = omt::unfold_sphere_map(m, mapped, how).folds;
   } else {
     conformal::untangle(m, mapped, false, fixed, left);
   }
