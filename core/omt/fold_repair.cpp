@@ -385,18 +385,20 @@ SphereUnfolded unfold_sphere_map(const mesh::TriMesh& m, mesh::Vertices& X, cons
   const std::vector<char> held = how.scope.held.empty() ? std::vector<char>(m.num_vertices(), 0) : how.scope.held;
   SphereUnfolded r;
   r.moved = conformal::untangle(m, X, true, held, r.folds, 100, how.keep_longest_edges);
-  r.degree = quality::sphere_degree(m.F, X);
-  auto may_repair = [&] { return how.barrier && r.folds > 0 && (!how.only_covering_once || quality::covers_once(r.degree)); };
-  if (may_repair()) {
+  // The degree is an O(F) sum: taken after each step only where it gates the next, and once at
+  // the end for the caller.
+  auto may_repair = [&] {
+    if (!how.barrier || r.folds == 0) return false;
+    return !how.only_covering_once || quality::covers_once(quality::sphere_degree(m.F, X));
+  };
+  if (may_repair())
     r.moved += repair_sphere_folds_by_barrier(m, X, r.folds, how.keep_going, BarrierSpace::kSphere, how.scope);
-    r.degree = quality::sphere_degree(m.F, X);
-  }
   for (int pass = 0; pass < how.chart_passes && may_repair(); ++pass) {
     const int before = r.folds;
     r.moved += repair_sphere_folds_by_barrier(m, X, r.folds, how.keep_going, BarrierSpace::kChart, how.scope);
-    r.degree = quality::sphere_degree(m.F, X);
     if (r.folds == before) break;
   }
+  r.degree = quality::sphere_degree(m.F, X);
   return r;
 }
 

@@ -2,6 +2,7 @@
 
 #include "expect_error.hpp"
 #include "random_draws.hpp"
+#include "scrambled_cap.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -935,18 +936,11 @@ TEST(FoldRepair, UnfoldsAPushedVertexOnTheSphereLocallyAndKeepsAreas) {
 // measure of the map it leaves, the barrier mends what the local moves alone leave, and held
 // vertices stay put. A cap of an icosphere scrambled in place, folding dozens of faces.
 TEST(FoldRepair, UnfoldSphereMapReportsTheMapItLeaves) {
-  const mesh::TriMesh m = mesh::make_icosphere(3);
-  std::mt19937 rng(11);
-  std::uniform_real_distribution<double> u(-1, 1);
-  const Eigen::Vector3d c = m.V.row(0).transpose();
-  const Eigen::Vector3d e1 = c.unitOrthogonal(), e2 = c.cross(e1);
-  mesh::Vertices X = m.V;
+  const test::ScrambledCap s = test::scrambled_icosphere_cap(3, 11, 0.4, 0.2);
+  const mesh::TriMesh& m = s.mesh;
+  const mesh::Vertices& X = s.map;
   std::vector<char> held(static_cast<size_t>(m.num_vertices()), 0);
-  for (int v = 0; v < m.num_vertices(); ++v)
-    if ((m.V.row(v).transpose() - c).norm() < 0.4) {
-      X.row(v) = (c + 0.2 * u(rng) * e1 + 0.2 * u(rng) * e2).normalized().transpose();
-      held[static_cast<size_t>(v)] = v % 7 == 0;  // a few held inside the scrambled cap
-    }
+  for (int v : s.cap) held[static_cast<size_t>(v)] = v % 7 == 0;  // a few held inside the scrambled cap
   ASSERT_GT(quality::measure(m, X, quality::Target::kSphere).flipped_faces, 10);
   auto agrees = [&](const mesh::Vertices& Y, const omt::SphereUnfolded& r) {
     const quality::MapQuality q = quality::measure(m, Y, quality::Target::kSphere);
