@@ -317,11 +317,10 @@ class SphereFoldRepair {
 class FaceTally {
  public:
   FaceTally(const mesh::TriMesh& m, const mesh::Vertices& X)
-      : m_(m), nf_(m.num_faces()), folded_(nf_), log_area_(nf_), solid_(nf_), log_target_(nf_) {
+      : m_(m), nf_(m.num_faces()), folded_(nf_), area_(nf_), log_area_(nf_), solid_(nf_), log_target_(nf_) {
     const Eigen::VectorXd a = mesh::face_areas(m);
     const double total = a.sum();
     for (int f = 0; f < nf_; ++f) log_target_[f] = std::log(a[f] / total);
-    area_ = mesh::face_areas(m.F, X);
     for (int f = 0; f < nf_; ++f) measure(X, f, folded_[f], area_[f], log_area_[f], solid_[f]);
     folds_ = static_cast<int>(std::count(folded_.begin(), folded_.end(), 1));
     total_area_ = area_.sum();
