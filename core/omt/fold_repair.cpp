@@ -331,44 +331,56 @@ class FaceTally {
   bool folded(int f) const { return folded_[f] != 0; }
   double distortion() const { return distortion_with(log_area_, total_area_); }
 
-  // The map with the faces `faces` measured on Z instead (every other face unchanged).
+  // The map with the faces `faces` measured on Z instead (every other face unchanged): its
+  // folds, degree and chord area follow from those faces alone. Its mean |log area ratio|, a
+  // sum over every face, is taken only when asked (distortion below).
   struct Trial {
     int folds;
-    double distortion, degree;
+    double total_area, total_solid;
     std::vector<char> folded;
     Eigen::VectorXd area, log_area, solid;
+    double degree() const { return total_solid / (4 * std::numbers::pi); }
   };
   Trial trial(const std::vector<int>& faces, const mesh::Vertices& Z) const {
-    Trial t{folds_, 0, 0, {}, {}, {}, {}};
+    Trial t{folds_, total_area_, total_solid_, {}, {}, {}, {}};
     const size_t n = faces.size();
     t.folded.resize(n);
     t.area.resize(static_cast<Eigen::Index>(n));
     t.log_area.resize(static_cast<Eigen::Index>(n));
     t.solid.resize(static_cast<Eigen::Index>(n));
-    double area = total_area_, solid = total_solid_;
-    Eigen::VectorXd log_area = log_area_;
     for (size_t i = 0; i < n; ++i) {
       const int f = faces[i];
       const auto e = static_cast<Eigen::Index>(i);
       measure(Z, f, t.folded[i], t.area[e], t.log_area[e], t.solid[e]);
       t.folds += t.folded[i] - folded_[f];
-      area += t.area[e] - area_[f];
-      solid += t.solid[e] - solid_[f];
-      log_area[f] = t.log_area[e];
+      t.total_area += t.area[e] - area_[f];
+      t.total_solid += t.solid[e] - solid_[f];
     }
-    t.distortion = distortion_with(log_area, area);
-    t.degree = solid / (4 * std::numbers::pi);
     return t;
+  }
+  // The mean |log area ratio| of the map with trial t on `faces` (each face once): the trial's
+  // log areas stand in for the sum and the kept ones are put back, so the faces are summed in
+  // the order of a measure of the whole map, without a copy of every face's value per trial.
+  double distortion(const std::vector<int>& faces, const Trial& t) {
+    Eigen::VectorXd kept(static_cast<Eigen::Index>(faces.size()));
+    for (size_t i = 0; i < faces.size(); ++i) {
+      const auto e = static_cast<Eigen::Index>(i);
+      kept[e] = log_area_[faces[i]];
+      log_area_[faces[i]] = t.log_area[e];
+    }
+    const double d = distortion_with(log_area_, t.total_area);
+    for (size_t i = 0; i < faces.size(); ++i) log_area_[faces[i]] = kept[static_cast<Eigen::Index>(i)];
+    return d;
   }
   void accept(const std::vector<int>& faces, const Trial& t) {
     for (size_t i = 0; i < faces.size(); ++i) {
       const int f = faces[i];
       const auto e = static_cast<Eigen::Index>(i);
-      total_area_ += t.area[e] - area_[f];
-      total_solid_ += t.solid[e] - solid_[f];
       folded_[f] = t.folded[i], area_[f] = t.area[e], log_area_[f] = t.log_area[e], solid_[f] = t.solid[e];
     }
     folds_ = t.folds;
+    total_area_ = t.total_area;
+    total_solid_ = t.total_solid;
   }
 
  private:
@@ -444,7 +456,9 @@ int repair_sphere_folds_by_barrier(const mesh::TriMesh& m, mesh::Vertices& X, in
       // A region untangled inside a fixed ring can still wrap around the sphere with every
       // face turned outward (cactus and u did, covering it 4 times): only a repair that
       // leaves the map's degree at 1 is a repair.
-      if (t.folds < folded && t.distortion <= allowed && quality::covers_once(t.degree)) {
+      // The distortion, a sum over every face, last and only where it is bounded.
+      if (t.folds < folded && quality::covers_once(t.degree()) &&
+          (!scope.bound_distortion || tally.distortion(region_faces, t) <= allowed)) {
         X = std::move(back);
         tally.accept(region_faces, t);
         folded = t.folds;
