@@ -17,8 +17,12 @@ face: the lowest mean among maps whose every face is within C, so a result at or
 C < 0.1 shows the bar can be met. The starts are the refinement's own
 result (`brenier-compute map -o`), the seed's centroid map (`--no-refine`), and random
 perturbations of both; each is polished, and the lowest mean over all is kept. It is a
-numerical global search, not a proof, but on 4-40 vertices with hundreds of starts the lowest
-value is reproducible, so it tells a floor of the triangulation from a stall of the solver.
+numerical global search, not a proof: what it prints is an upper bound of the floor. With a
+few starts it can miss the lowest basin by far. Iteratively reweighted refinements (session
+74, bench/RESULTS.md) found maps below its best on cross (0.0282 against 0.0423),
+cross_quad (0.0274 against 0.0423), corner_with_sharp_edge (0.0058 against 0.0121) and
+patch-23 (0.0199 against 0.0351). A value above the bar here does not show that the bar
+cannot be met.
 
     /usr/bin/python3 bench/area_floor.py build/tools/brenier-compute data/meshes/tetrahedron.off ...
         [--starts 200] [--seed 1] [--cap C]
