@@ -89,6 +89,8 @@ void to_proto(const jobs::MapRequest& r, pb::MapSpec* s) {
   s->set_max_iterations(r.max_iterations);
   s->set_allow_flips(r.allow_flips);
   s->set_no_refine(!r.refine);
+  s->set_refine_mean_tolerance(r.refine_mean_tolerance);
+  s->set_refine_p95_tolerance(r.refine_p95_tolerance);
 }
 
 jobs::MapRequest from_proto(const pb::MapSpec& s) {
@@ -107,6 +109,8 @@ jobs::MapRequest from_proto(const pb::MapSpec& s) {
   if (s.max_iterations() != 0) r.max_iterations = s.max_iterations();
   r.allow_flips = s.allow_flips();
   r.refine = !s.no_refine();
+  r.refine_mean_tolerance = s.refine_mean_tolerance();
+  r.refine_p95_tolerance = s.refine_p95_tolerance();
   r.validate();
   return r;
 }

@@ -22,8 +22,13 @@ std::string name_options(std::string_view m, OptionStyle style) {
   out.reserve(m.size() + 16);
   for (size_t i = 0; i < m.size(); ++i) {
     if (m[i] == '{') {
+      // A field's name: a lower-case letter, then letters, digits and '_' ("refine_p95_tolerance").
       size_t j = i + 1;
-      while (j < m.size() && ((m[j] >= 'a' && m[j] <= 'z') || m[j] == '_')) ++j;
+      auto name_char = [&](size_t k) {
+        const char c = m[k];
+        return (c >= 'a' && c <= 'z') || (k > i + 1 && ((c >= '0' && c <= '9') || c == '_'));
+      };
+      while (j < m.size() && name_char(j)) ++j;
       if (j < m.size() && m[j] == '}' && j > i + 1) {
         std::string name(m.substr(i + 1, j - i - 1));
         if (style == OptionStyle::kFlag) {

@@ -152,6 +152,8 @@ omt::AreaPreservingOptions area_preserving_options(const MapRequest& o, const Su
   apo.omt.progress = solver_progress(progress, "omt", apo.omt.tolerance, 0.3, 0.95);
   apo.t = o.t;
   apo.refine.enabled = o.refine;
+  if (o.refine_mean_tolerance > 0) apo.refine.mean_tolerance = o.refine_mean_tolerance;
+  if (o.refine_p95_tolerance > 0) apo.refine.p95_tolerance = o.refine_p95_tolerance;
   if (progress)
     apo.repair_progress = [progress](int round, int folds) {
       return progress(Progress{"fold repair", 0.95, round + 1, static_cast<double>(folds)});

@@ -99,6 +99,11 @@ void MapRequest::validate() const {
   for (size_t i = 0; i < weights.size(); ++i)
     if (!(weights[i] > 0) || !std::isfinite(weights[i]))
       invalid("weight " + std::to_string(i) + " is " + std::to_string(weights[i]) + "; {weights} must be positive numbers");
+  if (!finite_at_least(refine_mean_tolerance, 0)) invalid("{refine_mean_tolerance} must be a positive number");
+  if (!finite_at_least(refine_p95_tolerance, 0)) invalid("{refine_p95_tolerance} must be a positive number");
+  if ((refine_mean_tolerance > 0 || refine_p95_tolerance > 0) && (method == MapMethod::kConformal || !refine || t > 0))
+    invalid("{refine_mean_tolerance} and {refine_p95_tolerance} stop the area-preserving refinement, which does not "
+            "run with the conformal method, {no_refine} or {t} above 0");
 }
 
 void RegisterRequest::validate() const {

@@ -45,6 +45,9 @@ struct MapRequest {
   double t = 0;                 // area-preserving: phi_t, 0 area-preserving .. 1 conformal
   bool allow_flips = false;     // return a map that folds faces instead of failing
   bool refine = true;           // area-preserving: the face-by-face area refinement (omt/area_refinement.hpp)
+  /// The refinement's stop: mean and 95th percentile of |log area ratio| (0: its defaults,
+  /// omt::AreaRefineOptions). Looser stops take fewer Newton steps.
+  double refine_mean_tolerance = 0, refine_p95_tolerance = 0;
 
   static constexpr int kMaxIterations = 100000;
   /// Error(kInvalidArgument) naming the field for anything that cannot run on any mesh.

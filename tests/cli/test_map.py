@@ -70,6 +70,14 @@ for args, what, says in [
     (["map", os.path.join(data, "lion-head.off"), "--t", "0.5"], "phi_t of a conformal map",
      "--t and --weights apply to the area-preserving method"),
     (["map", os.path.join(data, "lion-head.off"), "--method", "bogus"], "unknown method", "bogus"),
+    (["map", os.path.join(data, "lion-head.off"), "--tolerance", "0"], "zero tolerance",
+     "--tolerance: '0' is not a positive number"),
+    (["map", os.path.join(data, "lion-head.off"), "--method", "area-preserving", "--refine-mean-tolerance", "-0.01"],
+     "negative refinement stop", "--refine-mean-tolerance: '-0.01' is not a positive number"),
+    (["map", os.path.join(data, "lion-head.off"), "--refine-p95-tolerance", "0.1"], "refinement stop, conformal map",
+     "--refine-mean-tolerance and --refine-p95-tolerance stop the area-preserving refinement"),
+    (["map", os.path.join(data, "lion-head.off"), "--method", "area-preserving", "--no-refine",
+      "--refine-mean-tolerance", "0.02"], "refinement stop without refinement", "--no-refine"),
     (["map", "/nonexistent.off"], "missing file", "/nonexistent.off"),
 ]:
     rc, so, se = run(*args)
@@ -89,7 +97,7 @@ for name in sorted(os.listdir(data)):
 # Area-preserving (disk): the omt block, masses to the tolerance, no fold, the boundary on
 # the circle; weights are checked.
 out = os.path.join(work, "lion-area.obj")
-refined_before = {"mean_abs": float("nan")}
+refined_before, refined_steps = {"mean_abs": float("nan")}, 0
 rc, so, se = run("map", os.path.join(data, "lion-head.off"), "--method", "area-preserving", "-o", out, "--json")
 check(rc == 0 and se == "", f"lion-head area-preserving: exit {rc}, stderr {se!r}")
 if rc == 0:
@@ -111,6 +119,18 @@ if rc == 0:
     check(abs(r["area_distortion_log_after"]["mean_abs"] - ad["mean_abs"]) < 1e-12, f"after {r} vs {ad}")
     check(r["area_distortion_log_before"]["mean_abs"] > 0.2, f"before {r['area_distortion_log_before']}")
     refined_before = r["area_distortion_log_before"]
+    refined_steps = r["iterations"]
+# The refinement's stop, stated by the caller: the bar itself (0.02, 0.1) is met in
+# fewer Newton steps than the default stop at half of it, and the report echoes the stop.
+rc, so, se = run("map", os.path.join(data, "lion-head.off"), "--method", "area-preserving",
+                 "--refine-mean-tolerance", "0.02", "--refine-p95-tolerance", "0.1", "--json")
+check(rc == 0 and se == "", f"lion-head with a looser stop: exit {rc}, stderr {se!r}")
+if rc == 0:
+    r = json.loads(so)["omt"]["refined"]
+    after = r["area_distortion_log_after"]
+    check(r["tolerance"] == {"mean_abs": 0.02, "p95_abs": 0.1}, f"stated stop echoed: {r['tolerance']}")
+    check(r["converged"] and after["mean_abs"] <= 0.02 and after["p95_abs"] <= 0.1, f"looser stop met: {r}")
+    check(r["iterations"] < refined_steps, f"looser stop: {r['iterations']} steps against {refined_steps}")
 # --no-refine: the seed's centroid map, whose distortion is the refinement's "before".
 rc, so, se = run("map", os.path.join(data, "lion-head.off"), "--method", "area-preserving", "--no-refine", "--json")
 check(rc == 0 and se == "", f"lion-head --no-refine: exit {rc}, stderr {se!r}")

@@ -69,6 +69,19 @@ try:
     again = stub.SubmitJob(pb.SubmitJobRequest(request_id="py-1", map=pb.MapSpec(
         mesh=mesh.id, domain=pb.DISK, method=pb.AREA_PRESERVING)))
     check(again.id == job.id, "the same request_id returns the same job")
+    # The refinement's stop, stated in the spec, reaches the engine and comes back in the report.
+    stop = stub.SubmitJob(pb.SubmitJobRequest(request_id="py-2", map=pb.MapSpec(
+        mesh=mesh.id, domain=pb.DISK, method=pb.AREA_PRESERVING, refine_mean_tolerance=0.03, refine_p95_tolerance=0.2)))
+    check(list(stub.WatchJob(pb.WatchJobRequest(id=stop.id)))[-1].state == pb.SUCCEEDED, "the stated stop's job succeeds")
+    rep = json.loads(b"".join(c.chunk for c in list(stub.GetResult(pb.GetResultRequest(id=stop.id, artifact="report")))[1:]))
+    check(rep["omt"]["refined"]["tolerance"] == {"mean_abs": 0.03, "p95_abs": 0.2}, f"stop echoed: {rep['omt']['refined']}")
+    try:
+        stub.SubmitJob(pb.SubmitJobRequest(request_id="py-3", map=pb.MapSpec(
+            mesh=mesh.id, domain=pb.DISK, method=pb.AREA_PRESERVING, refine_p95_tolerance=float("nan"))))
+        check(False, "a NaN stop is refused")
+    except grpc.RpcError as e:
+        check(e.code() == grpc.StatusCode.INVALID_ARGUMENT and "refine_p95_tolerance" in e.details(),
+              f"NaN stop: {e.code()} {e.details()}")
     try:
         list(stub.GetResult(pb.GetResultRequest(id="no-such-job")))
         check(False, "an unknown job is NOT_FOUND")

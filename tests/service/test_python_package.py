@@ -75,6 +75,13 @@ try:
     fractions = [e.fraction for e in events]
     check(len(events) > 3 and fractions == sorted(fractions) and any(e.stage == "omt" for e in events),
           f"the progress callback saw the stages ({len(events)} events)")
+    # The refinement's stop as the caller states it: the engine's map with the same flags.
+    loose = c.map(lion, domain="disk", method="area-preserving", refine_tolerance=(0.02, 0.1))
+    _, lvt, _, lreport = engine_obj(lion, "--method", "area-preserving", "--refine-mean-tolerance", "0.02",
+                                    "--refine-p95-tolerance", "0.1")
+    check(np.array_equal(loose.uv, lvt) and loose.report["omt"]["refined"]["tolerance"] == {"mean_abs": 0.02, "p95_abs": 0.1},
+          f"refine_tolerance reaches the engine: {loose.report['omt']['refined']}")
+    check(lreport["omt"]["refined"]["iterations"] < report["omt"]["refined"]["iterations"], "the looser stop takes fewer steps")
     png = c.result(m.job_id, "preview.png")
     check(png[:8] == b"\x89PNG\r\n\x1a\n", "the job's preview.png")
 

@@ -35,6 +35,16 @@ TEST(Spec, MapRequestsSurviveTheWire) {
   EXPECT_FALSE(back.refine);
   EXPECT_TRUE(s.no_refine());
   EXPECT_TRUE(spec::from_proto(pb::MapSpec()).refine);  // an old client's spec: refined
+  // The refinement's stop travels with a refined request; zero is the engine's default.
+  jobs::MapRequest stop;
+  stop.method = jobs::MapMethod::kAreaPreserving;
+  stop.refine_mean_tolerance = 0.02;
+  stop.refine_p95_tolerance = 0.1;
+  s.Clear();
+  spec::to_proto(stop, &s);
+  EXPECT_EQ(s.refine_mean_tolerance(), 0.02);
+  EXPECT_EQ(spec::from_proto(s).refine_p95_tolerance, 0.1);
+  EXPECT_EQ(spec::from_proto(pb::MapSpec()).refine_mean_tolerance, 0);
   EXPECT_EQ(back.hole_vertex, -1);
   jobs::MapRequest cut;
   cut.cut_hole = true;
@@ -136,6 +146,16 @@ TEST(Spec, BadSpecsNameTheirField) {
   s.set_t(0.5);
   EXPECT_ERROR(spec::from_proto(s), ErrorCode::kInvalidArgument, "{t} and {weights} apply to the area-preserving method");
   EXPECT_EQ(name_options("{t} and {weights}", OptionStyle::kField), "t and weights");
+  // Field names may hold digits after their first letter; braces around anything else stay.
+  EXPECT_EQ(name_options("{refine_p95_tolerance}, {3}, {_x}", OptionStyle::kFlag), "--refine-p95-tolerance, {3}, {_x}");
+  s.Clear();
+  s.set_method(pb::AREA_PRESERVING);
+  s.set_refine_p95_tolerance(-0.1);
+  EXPECT_ERROR(spec::from_proto(s), ErrorCode::kInvalidArgument, "{refine_p95_tolerance} must be a positive number");
+  s.set_refine_p95_tolerance(0.1);
+  s.set_no_refine(true);
+  EXPECT_ERROR(spec::from_proto(s), ErrorCode::kInvalidArgument,
+               "{refine_mean_tolerance} and {refine_p95_tolerance} stop the area-preserving refinement");
   s.Clear();
   s.set_has_hole_vertex(true);
   s.set_hole_vertex(-3);

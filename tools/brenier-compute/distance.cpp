@@ -383,7 +383,7 @@ void add_distance(CLI::App& app, Action& action) {
     CLI::App* cmd = app.add_subcommand("knn", "k-nearest-neighbour classification from a distance matrix");
     cmd->add_option("matrix", o->input, "matrix (.csv or .json)")->required();
     cmd->add_option("--labels", o->labels, "CSV of name,label")->required();
-    cmd->add_option("--k", o->k, "neighbours (default 1)")->check(CLI::PositiveNumber);
+    cmd->add_option("--k", o->k, "neighbours (default 1)")->check(options::positive_number());
     cmd->add_option("--folds", o->folds, "k-fold cross-validation (default: leave-one-out)")->check(CLI::Range(2, 1 << 20));
     cmd->add_flag("--json", o->json, "print one JSON object");
     cmd->callback([o, &action] { action = [o] { return run_knn(o->input, o->labels, o->k, o->folds, o->json); }; });

@@ -15,6 +15,7 @@
 #include <random>
 
 #include "commands.hpp"
+#include "request_flags.hpp"
 #include "common/error.hpp"
 #include "omt/omt.hpp"
 
@@ -90,7 +91,7 @@ void add_omt_bench(CLI::App& app, Action& action) {
   cmd->add_option("--sites", o->sites, "number of sites")->check(CLI::Range(1, 50000000));
   cmd->add_option("--masses", o->masses, "equal or gaussian (exp(-8|p|^2))")->check(CLI::IsMember({"equal", "gaussian"}));
   cmd->add_option("--seed", o->seed, "random seed");
-  cmd->add_option("--tolerance", o->tolerance, "max relative cell-mass error")->check(CLI::PositiveNumber);
+  cmd->add_option("--tolerance", o->tolerance, "max relative cell-mass error")->check(options::positive_number());
   cmd->add_flag("--multilevel", o->multilevel, "coarse-to-fine start (as the maps and distances use)");
   cmd->add_flag("--no-probe{false}", o->probe, "with --multilevel: take the coarse start without probing the plain one");
   cmd->add_flag("--json", o->json, "print one JSON object");

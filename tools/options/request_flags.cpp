@@ -1,6 +1,7 @@
 #include "request_flags.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <optional>
 #include <string_view>
 #include <vector>
@@ -30,7 +31,25 @@ CLI::Validator choices(std::initializer_list<E> values, const char* (*name)(E), 
       "{" + list + "}");
 }
 
+// A number whose value passes `ok`, described as `what` ("a positive number").
+CLI::Validator number_that(bool (*ok)(double), const std::string& what) {
+  return CLI::Validator(
+      [ok, what](std::string& in) -> std::string {
+        double x = 0;
+        if (!CLI::detail::lexical_cast(in, x) || !std::isfinite(x) || !ok(x)) return "'" + in + "' is not " + what;
+        return {};
+      },
+      what == "a positive number" ? "POSITIVE" : "NONNEGATIVE");
+}
+
 }  // namespace
+
+CLI::Validator positive_number() {
+  return number_that([](double x) { return x > 0; }, "a positive number");
+}
+CLI::Validator non_negative_number() {
+  return number_that([](double x) { return x >= 0; }, "a non-negative number");
+}
 
 CLI::Option* add_domain(CLI::App* cmd, jobs::Domain& domain, const std::string& help) {
   return cmd->add_option("--domain", domain, help)
@@ -42,7 +61,7 @@ void add_cut_hole(CLI::App* cmd, bool& cut_hole, int& hole_vertex, const std::st
   cmd->add_option("--hole-vertex", hole_vertex,
                   "with --cut-hole: the vertex whose star is removed (default: a vertex near the surface's "
                   "centre, splitting a near-diametral pair of vertices)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
 }
 
 void MapFlags::add_to(CLI::App* cmd) {
@@ -57,7 +76,7 @@ void MapFlags::add_to(CLI::App* cmd) {
   cmd->add_option("--tolerance", r.tolerance,
                   "conformal: max |K - Kbar| (radians, default 1e-7); area-preserving: max relative "
                   "cell-mass error (default 1e-8)")
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   cmd->add_option("--max-iterations", r.max_iterations, "Newton iterations (default 200)")
       ->check(CLI::Range(1, jobs::MapRequest::kMaxIterations));
   cmd->add_option("--weights", weights_file,
@@ -67,6 +86,13 @@ void MapFlags::add_to(CLI::App* cmd) {
   cmd->add_flag("--allow-flips", r.allow_flips, "return a map even if it folds faces");
   cmd->add_flag("--no-refine{false}", r.refine,
                 "area-preserving: the seed's centroid map, without the face-by-face area refinement");
+  cmd->add_option("--refine-mean-tolerance", r.refine_mean_tolerance,
+                  "area-preserving: the refinement stops once the mean |log area ratio| is at most this (default 0.01) "
+                  "and its 95th percentile meets --refine-p95-tolerance")
+      ->check(positive_number());
+  cmd->add_option("--refine-p95-tolerance", r.refine_p95_tolerance,
+                  "area-preserving: the refinement's stop on the 95th percentile of |log area ratio| (default 0.05)")
+      ->check(positive_number());
 }
 
 jobs::MapRequest MapFlags::resolve() const {
@@ -86,7 +112,7 @@ void RegisterFlags::add_to(CLI::App* cmd) {
   cmd->add_option("--landmarks", landmark_files,
                   "two files, the source's and the target's landmarks: one vertex number per line, paired by order")
       ->expected(2);
-  cmd->add_option("--tolerance", r.tolerance, "the maps' tolerance (as map --tolerance)")->check(CLI::PositiveNumber);
+  cmd->add_option("--tolerance", r.tolerance, "the maps' tolerance (as map --tolerance)")->check(positive_number());
   cmd->add_option("--max-iterations", r.max_iterations, "Newton iterations of each map (default 200)")
       ->check(CLI::Range(1, jobs::MapRequest::kMaxIterations));
   cmd->add_flag("--harmonic-only{false}", r.isometric,
@@ -122,7 +148,7 @@ void ShapeFlags::add_to(CLI::App* cmd) {
   cmd->add_option("--tolerance", r.tolerance,
                   "wasserstein: max relative cell-mass error of each transport (default 1e-3; the distance is read "
                   "from the dual, accurate to about the square of it)")
-      ->check(CLI::PositiveNumber);
+      ->check(positive_number());
   cmd->add_option("--cost-tolerance", r.cost_tolerance,
                   "wasserstein: or stop each transport once its cost is known to this relative accuracy (the "
                   "Newton decrement; default 1e-6, 0: off)")
@@ -141,11 +167,11 @@ void ShapeFlags::add_to(CLI::App* cmd) {
 
 void DistanceFlags::add_to(CLI::App* cmd) {
   shape.add_to(cmd);
-  cmd->add_option("--center-a", a.center, "interior marker of the first mesh (sent to 0)")->check(CLI::NonNegativeNumber);
+  cmd->add_option("--center-a", a.center, "interior marker of the first mesh (sent to 0)")->check(non_negative_number());
   cmd->add_option("--boundary-a", a.boundary, "boundary marker of the first mesh (sent to 1)")
-      ->check(CLI::NonNegativeNumber);
-  cmd->add_option("--center-b", b.center, "interior marker of the second mesh")->check(CLI::NonNegativeNumber);
-  cmd->add_option("--boundary-b", b.boundary, "boundary marker of the second mesh")->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
+  cmd->add_option("--center-b", b.center, "interior marker of the second mesh")->check(non_negative_number());
+  cmd->add_option("--boundary-b", b.boundary, "boundary marker of the second mesh")->check(non_negative_number());
 }
 
 jobs::DistanceRequest DistanceFlags::resolve() const {

@@ -10,6 +10,12 @@
 
 namespace brenier::options {
 
+/// A number above 0, or (non_negative_number) at least 0. CLI11's PositiveNumber and
+/// NonNegativeNumber refuse with their range printed in full ("Value 0 not in range 0.000000 to
+/// 1797693134862315708...", the lower end being the least positive double); these say what is wrong.
+CLI::Validator positive_number();
+CLI::Validator non_negative_number();
+
 /// --domain disk|sphere, by name.
 CLI::Option* add_domain(CLI::App* cmd, jobs::Domain& domain, const std::string& help);
 /// --cut-hole and --hole-vertex V.

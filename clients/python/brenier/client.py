@@ -307,14 +307,17 @@ class Client:
     # ---- computations -----------------------------------------------------------------------
 
     def map(self, mesh, domain="disk", method="conformal", *, t=0.0, tolerance=0.0, cut_hole=False, weights=None,
-            allow_flips=False, max_iterations=0, refine=True, progress=None):
+            allow_flips=False, max_iterations=0, refine=True, refine_tolerance=None, progress=None):
         """Maps a surface onto the unit disk or sphere (conformal: Alg. 1; area-preserving:
         the conformal map, then optimal transport, Alg. 3, then the face-by-face area
-        refinement unless refine=False) and waits for it."""
+        refinement unless refine=False) and waits for it. refine_tolerance=(mean, p95): the
+        refinement's stop on |log area ratio| (None: the server's, 0.01 and 0.05)."""
+        mean_tol, p95_tol = refine_tolerance if refine_tolerance is not None else (0.0, 0.0)
         spec = pb.MapSpec(mesh=self.mesh_id(mesh), domain=_pick(_DOMAINS, domain, "domain"),
                           method=_pick(_MAP_METHODS, method, "method"), t=t, tolerance=tolerance, cut_hole=cut_hole,
                           weights=list(weights) if weights is not None else [], allow_flips=allow_flips,
-                          max_iterations=max_iterations, no_refine=not refine, output_format="obj")
+                          max_iterations=max_iterations, no_refine=not refine, refine_mean_tolerance=mean_tol,
+                          refine_p95_tolerance=p95_tol, output_format="obj")
         job = self.watch(self.submit(map=spec).id, progress)
         positions, vt, faces = _parse_obj(self.result(job.id, "mesh"))
         disk = domain == "disk"
