@@ -31,24 +31,25 @@ CLI::Validator choices(std::initializer_list<E> values, const char* (*name)(E), 
       "{" + list + "}");
 }
 
-// A number whose value passes `ok`, described as `what` ("a positive number").
-CLI::Validator number_that(bool (*ok)(double), const std::string& what) {
+// A number whose value passes `ok`, described as `what` ("a positive number") in the refusal and
+// as `name` in the help's type column.
+CLI::Validator number_that(bool (*ok)(double), const std::string& what, const std::string& name) {
   return CLI::Validator(
       [ok, what](std::string& in) -> std::string {
         double x = 0;
         if (!CLI::detail::lexical_cast(in, x) || !std::isfinite(x) || !ok(x)) return "'" + in + "' is not " + what;
         return {};
       },
-      what == "a positive number" ? "POSITIVE" : "NONNEGATIVE");
+      name);
 }
 
 }  // namespace
 
 CLI::Validator positive_number() {
-  return number_that([](double x) { return x > 0; }, "a positive number");
+  return number_that([](double x) { return x > 0; }, "a positive number", "POSITIVE");
 }
 CLI::Validator non_negative_number() {
-  return number_that([](double x) { return x >= 0; }, "a non-negative number");
+  return number_that([](double x) { return x >= 0; }, "a non-negative number", "NONNEGATIVE");
 }
 
 CLI::Option* add_domain(CLI::App* cmd, jobs::Domain& domain, const std::string& help) {
