@@ -155,6 +155,38 @@ TEST(RealAreaPreserving, TheCoarseToFineStartGivesTheSameMap) {
   EXPECT_EQ(quality::measure(cm.mesh, b.positions, quality::Target::kPlane).flipped_faces, 0);
 }
 
+TEST(RealAreaPreserving, ReweightedRoundsTakeCornerToTheBarAndSetNoMapBack) {
+  // The disk's reweighted rounds after the stages (AreaRefineOptions::reweighted_rounds): on
+  // the small disk meshes whose stages end short of the tolerances they keep a round's map only
+  // where it is better, so no statistic gets worse than the stages' (the p95 not beyond the
+  // tolerance); corner_with_sharp_edge, which the stages leave at mean 0.0213, meets issue 26's
+  // bar through them (bench/RESULTS.md, session 75).
+  for (const char* name : {"corner_with_sharp_edge.off", "patch-13.off", "patch-21.off", "patch-23.off",
+                           "mesh_with_colors.off"}) {
+    SCOPED_TRACE(name);
+    mesh::CleanMesh cm = mesh::load_mesh((fs::path(BRENIER_TEST_DATA_DIR) / name).string());
+    ASSERT_TRUE(cm.valid());
+    omt::AreaPreservingOptions stages_only;
+    stages_only.refine.reweighted_rounds = 0;
+    const omt::AreaPreservingMap a = omt::area_preserving_disk(cm.mesh, stages_only);
+    const omt::AreaPreservingMap b = omt::area_preserving_disk(cm.mesh);
+    ASSERT_TRUE(a.refinement.ran && b.refinement.ran);
+    EXPECT_FALSE(a.refinement.converged) << "a mesh the rounds run on";
+    EXPECT_LE(b.refinement.after.mean, a.refinement.after.mean);
+    EXPECT_LE(b.refinement.after.max, a.refinement.after.max);
+    EXPECT_LE(b.refinement.after.p95, std::max(a.refinement.after.p95, b.refinement.p95_tolerance));
+    EXPECT_GE(b.refinement.iterations, a.refinement.iterations);
+    const quality::MapQuality q = quality::measure(cm.mesh, b.positions, quality::Target::kPlane);
+    EXPECT_EQ(q.flipped_faces, 0);
+    EXPECT_NEAR(q.area_distortion_log_abs.mean, b.refinement.after.mean, 1e-12);
+    if (std::string(name) == "corner_with_sharp_edge.off") {
+      EXPECT_GT(a.refinement.after.mean, 0.02);
+      EXPECT_LE(b.refinement.after.mean, 0.02);
+      EXPECT_LE(b.refinement.after.p95, 0.1);
+    }
+  }
+}
+
 TEST(RealAreaPreserving, AreaDistortionFallsFarBelowTheConformalMaps) {
   expect_area_distortion_below(
       {"lion-head.off", "cylinder.off", "cylinder_locally_refined.off", "mannequin-devil.off"},
