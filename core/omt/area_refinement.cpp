@@ -95,7 +95,7 @@ struct PlaneGeometry {
   double term(const mesh::Vertices& X, const detail::BarrierFace& f, double theta) const {
     const Eigen::Matrix2d J = edges(X, f) * f.ref_inv;
     const double D = J.determinant();
-    return D > 0 ? scalars(f.weight, theta, D, J.squaredNorm()).e : std::numeric_limits<double>::infinity();
+    return D > 0 ? scalars(f.weight * f.scale, theta, D, J.squaredNorm()).e : std::numeric_limits<double>::infinity();
   }
   // The gradient and the Hessian projected onto the positive semi-definite cone (Teran et
   // al. 2005), in J (4x4, where the energy's invariance under rotations gives the projection
@@ -104,7 +104,7 @@ struct PlaneGeometry {
     const Eigen::Matrix2d& R = f.ref_inv;
     const Eigen::Matrix2d J = edges(X, f) * R;
     const double D = J.determinant(), T = J.squaredNorm();
-    const Scalars c = scalars(f.weight, theta, D, T);
+    const Scalars c = scalars(f.weight * f.scale, theta, D, T);
     const numeric::IsotropicDerivatives2d d = numeric::isotropic_derivatives_2d(J, c.eD, c.eT, c.eDD, c.eDT);
     const Eigen::Vector4d& gJ = d.g;
     const Eigen::Matrix4d HJ = numeric::clamped_isotropic_2d(J, d.H);
@@ -207,7 +207,7 @@ struct SphereGeometry {
     const double det = a.dot(n);  // det(a, b, c), from the edges: no cancellation on small faces
     const double D = (chord ? n.norm() : det) / (2 * f.weight);
     if (!(det > 0) || !(D > 0)) return std::numeric_limits<double>::infinity();
-    const double e = scalars(f.weight, theta, D, (M * f.ref_inv).squaredNorm()).e;
+    const double e = scalars(f.weight * f.scale, theta, D, (M * f.ref_inv).squaredNorm()).e;
     return chord ? e + plane_barrier * f.weight * n.norm() / det : e;  // + beta w / h
   }
   // The Hessian in the nine coordinates of (a, b, c), then in the corners' tangent
@@ -235,7 +235,7 @@ struct SphereGeometry {
     x << a, b, c;
     const V9 gT = HT * x;
     const double T = 0.5 * x.dot(gT);
-    const Scalars s = scalars(f.weight, theta, D, T);
+    const Scalars s = scalars(f.weight * f.scale, theta, D, T);
     V9 g9 = s.eD * gD + s.eT * gT;
     M9 H9 = s.eDD * gD * gD.transpose() + s.eDT * (gD * gT.transpose() + gT * gD.transpose()) + s.eD * HD + s.eT * HT;
     if (chord) add_plane_barrier(determinant(a, b, c, n), raw, f.weight, g9, H9);
@@ -497,11 +497,13 @@ constexpr std::array<double, 2> kThetas = {0.999, 0.9999};
 constexpr std::array<double, 5> kFarThetas = {0.98, 0.995, 0.999, 0.9999, 0.99999};
 constexpr double kFarStart = 0.25;
 
-// The disk's rounds toward the bar's own measure (AreaRefineOptions::reweighted_rounds). The
+// The rounds toward the bar's own measure (AreaRefineOptions::reweighted_rounds), after the disk's
+// stages and the sphere's chord stages. The
 // energy's area term weighs each face by its target area and grows like l_f^2 (l_f = log D_f)
 // near D_f = 1, while the bar is the mean of |l_f| over the faces, each face once. Iteratively
 // reweighted least squares for that L1 measure: each round multiplies face f's term by
-// (mean target / target_f) / sqrt(l_f^2 + delta^2), l_f read at the round's start, so that the
+// (mean target / target_f) / sqrt(l_f^2 + delta^2) (BarrierFace::scale), l_f read at the round's
+// start, so that the
 // area term is, to second order, sum_f l_f^2 / sqrt(l0_f^2 + delta^2), whose minimum lowers sum_f
 // sqrt(l_f^2 + delta^2); then up to 50 Newton steps at the last stage's theta. The rounds go on
 // from each other's maps, and one is kept only if its mean is lower and neither its p95 (beyond
@@ -510,11 +512,13 @@ constexpr double kFarStart = 0.25;
 // at 0.0025 / p95 0.013 / max 0.018 against the stages' 0.0213 / 0.098 / 0.117, so the maps on
 // the way are not kept and the result is never worse than the stages'. On patch-23 the rounds
 // lower the mean to 0.0205 only by letting one face grow 2.4 times (max 0.16 -> 0.89): not kept.
-// delta 0.01 and 0.005 take corner to 0.0052 and 0.0024 as well. Meshes of at most
-// kReweightedFaces faces only, where the rounds cost milliseconds: on the sphere's large meshes
-// such rounds doubled the sweep's time and moved none onto the bar (bench/RESULTS.md, sessions
+// delta 0.01 and 0.005 take corner to 0.0052 and 0.0024 as well. On the sphere: cross 0.0415 ->
+// 0.0282, cross_quad 0.0621 -> 0.0274, u 0.1244 -> 0.096, oblong 0.0406 -> 0.0309, every statistic
+// lower, none onto the bar. Meshes of at most kReweightedFaces faces only, where the rounds cost
+// a second at most: on bull (12,396 faces) they kept nothing and cost 14 s, and on the sphere's
+// large meshes rounds after every stage doubled the sweep's time (bench/RESULTS.md, sessions
 // 74-75).
-constexpr int kReweightedFaces = 400;
+constexpr int kReweightedFaces = 1000;
 constexpr double kReweightDelta = 0.02;
 
 template <class Geometry, class SetReferences>
@@ -535,7 +539,7 @@ void reweighted_rounds(const mesh::TriMesh& m, const Eigen::VectorXd& target, me
     c /= c.mean();
     for (int k = 0; k < 50; ++k) {
       set_references();
-      for (int f = 0; f < m.num_faces(); ++f) faces[f].weight *= c[f];  // on the plane a pure factor
+      for (int f = 0; f < m.num_faces(); ++f) faces[f].scale = c[f];
       double E = 0;
       const double decrement = newton.step(X, theta, E);
       ++out.iterations;
@@ -558,8 +562,8 @@ void reweighted_rounds(const mesh::TriMesh& m, const Eigen::VectorXd& target, me
 // whole when the tolerances hold or the budget is spent; the unknowns and the analysed
 // pattern are plan's. Given min_progress (the sphere), a stage also ends once kPatience steps
 // in a row have not cut the mean |log area ratio| by that fraction from where it last did (0:
-// have not lowered it), and the map goes back to the stage's best. Given reweight (the disk), the
-// reweighted rounds follow the stages.
+// have not lowered it), and the map goes back to the stage's best. Given reweight (the disk's run,
+// the sphere's chord runs), the reweighted rounds follow the stages.
 template <class Geometry>
 AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mesh::Vertices& X,
                       RefinementPlan& plan, const AreaRefineOptions& opt, Geometry& geometry,
@@ -726,7 +730,7 @@ AreaRefinement refine_sphere_areas(const mesh::TriMesh& m, const Eigen::VectorXd
   for (int from_start = 0; from_start < 2 && !out.converged; ++from_start) {
     if (from_start && out.kept_start) break;  // the first chord run already started there
     mesh::Vertices Y = from_start ? start : X;
-    const AreaRefinement chord = refine(m, target, Y, *plan, opt, sphere, thetas, 0.01);
+    const AreaRefinement chord = refine(m, target, Y, *plan, opt, sphere, thetas, 0.01, true);
     add(chord);
     if (!chord.kept_start && chord.after.mean < out.after.mean) {
       X = std::move(Y);

@@ -51,9 +51,10 @@ struct AreaRefineOptions {
   /// Newton steps over all stages of one run. On the sphere the volume run has this budget, and
   /// so has each chord run after it (from its result and, if still short, from the start).
   int max_iterations = 100;
-  /// The disk, meshes of at most 400 faces whose stages end short of the tolerances: rounds
-  /// of reweighted Newton steps toward the measure itself, the mean of |log area ratio| over
-  /// the faces (area_refinement.cpp); a round's map is kept only where it is better. 0: none.
+  /// Meshes of at most 1,000 faces whose stages end short of the tolerances (on the sphere, the
+  /// chord stages): rounds of reweighted Newton steps toward the measure itself, the mean of
+  /// |log area ratio| over the faces (area_refinement.cpp); a round's map is kept only where it
+  /// is better. 0: none.
   int reweighted_rounds = 15;
 };
 

@@ -22,6 +22,7 @@ struct BarrierFace {
   std::array<int, 3> v;     // indices into the positions, counter-clockwise in the reference
   Eigen::Matrix2d ref_inv;  // inverse of [q1 - q0, q2 - q0] of the reference triangle
   double weight = 0;        // the reference triangle's area
+  double scale = 1;         // the area refinement's reweighted rounds: a factor on the face's term
 };
 
 // The reference triangle of a face with 3-D corners a, b, c, scaled to area `area`.
