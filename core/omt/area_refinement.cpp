@@ -497,14 +497,18 @@ constexpr std::array<double, 2> kThetas = {0.999, 0.9999};
 constexpr std::array<double, 5> kFarThetas = {0.98, 0.995, 0.999, 0.9999, 0.99999};
 constexpr double kFarStart = 0.25;
 
-// The rounds toward the bar's own measure (AreaRefineOptions::reweighted_rounds), after the disk's
-// stages and the sphere's chord stages. The
-// energy's area term weighs each face by its target area and grows like l_f^2 (l_f = log D_f)
-// near D_f = 1, while the bar is the mean of |l_f| over the faces, each face once. Iteratively
-// reweighted least squares for that L1 measure: each round multiplies face f's term by
-// (mean target / target_f) / sqrt(l_f^2 + delta^2) (BarrierFace::scale), l_f read at the round's
-// start, so that the
-// area term is, to second order, sum_f l_f^2 / sqrt(l0_f^2 + delta^2), whose minimum lowers sum_f
+// Whether a refinement's result meets both of its stated tolerances.
+bool meets(const AreaRefineOptions& opt, const quality::Stats& s) {
+  return s.mean <= opt.mean_tolerance && s.p95 <= opt.p95_tolerance;
+}
+
+// The rounds toward the bar's own measure (AreaRefineOptions::reweighted_rounds), after the
+// disk's stages and the sphere's chord stages. The energy's area term weighs each face by its
+// target area and grows like l_f^2 (l_f = log D_f) near D_f = 1, while the bar is the mean of
+// |l_f| over the faces, each face once. Iteratively reweighted least squares for that L1
+// measure: each round multiplies face f's term by (mean target / target_f) /
+// sqrt(l_f^2 + delta^2) (BarrierFace::scale), l_f read at the round's start, so that the area
+// term is, to second order, sum_f l_f^2 / sqrt(l0_f^2 + delta^2), whose minimum lowers sum_f
 // sqrt(l_f^2 + delta^2); then up to 50 Newton steps at the last stage's theta. The rounds go on
 // from each other's maps, and one is kept only if its mean is lower and neither its p95 (beyond
 // the tolerance) nor its max is higher than the best kept: on corner_with_sharp_edge (18
@@ -526,7 +530,7 @@ void reweighted_rounds(const mesh::TriMesh& m, const Eigen::VectorXd& target, me
                        FaceNewton<Geometry>& newton, std::vector<detail::BarrierFace>& faces,
                        const SetReferences& set_references, double theta, const AreaRefineOptions& opt,
                        AreaRefinement& out) {
-  auto met = [&](const quality::Stats& s) { return s.mean <= opt.mean_tolerance && s.p95 <= opt.p95_tolerance; };
+  auto met = [&opt](const quality::Stats& s) { return meets(opt, s); };
   if (m.num_faces() > kReweightedFaces || met(out.after)) return;
   mesh::Vertices best_X = X;
   quality::Stats best = out.after;
@@ -575,7 +579,7 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
   out.mean_tolerance = opt.mean_tolerance;
   out.p95_tolerance = opt.p95_tolerance;
   out.before = out.after = abs_log_stats(m.F, X, target);
-  auto met = [&](const quality::Stats& s) { return s.mean <= opt.mean_tolerance && s.p95 <= opt.p95_tolerance; };
+  auto met = [&opt](const quality::Stats& s) { return meets(opt, s); };
   out.converged = met(out.after);
   const mesh::Vertices start = X;
   // The reference triangles, of the target areas in the energy's measure (on the sphere, in

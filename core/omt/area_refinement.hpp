@@ -49,7 +49,9 @@ struct AreaRefineOptions {
   /// The disk's boundary vertices slide along the circle (false: held where they are).
   bool slide_boundary = true;
   /// Newton steps over all stages of one run. On the sphere the volume run has this budget, and
-  /// so has each chord run after it (from its result and, if still short, from the start).
+  /// so has each chord run after it (from its result and, if still short, from the start). The
+  /// reweighted rounds' steps (at most 50 a round) come on top and are counted in
+  /// AreaRefinement::iterations.
   int max_iterations = 100;
   /// Meshes of at most 1,000 faces whose stages end short of the tolerances (on the sphere, the
   /// chord stages): rounds of reweighted Newton steps toward the measure itself, the mean of
