@@ -42,6 +42,12 @@ void each_face_entry(const std::array<int, 3>& v, const std::vector<Dof>& dof, c
 /// CHOLMOD's NESDIS left 13.7M entries in the 100K-vertex disk map's factor against AMD's
 /// 17.1M; bench/RESULTS.md, session 26). Supernodal at every size: the 2x2 blocks of each
 /// vertex fill more than a graph Laplacian does (session 46).
+/// The matrix is stored already permuted by the analysis's ordering (NESDIS, then CHOLMOD's
+/// postorder), and the factor is analysed for it in its natural order. Given a lower triangle
+/// and an ordering, CHOLMOD's supernodal factorization first builds the permuted matrix by two
+/// transposes (cholmod_factorize: triu(PAP'), then its transpose); in the natural order it
+/// reads the lower triangle as it stands. The unknowns keep their numbering outside: add()
+/// writes through the slots, diagonal() and solve() map it.
 class FaceHessian {
  public:
   using Factor = Eigen::CholmodDecomposition<Eigen::SparseMatrix<double>>;
@@ -60,8 +66,8 @@ class FaceHessian {
   /// Adds face f's reduced 6x6 Hessian (lower triangle read) into its slots. Not thread-safe:
   /// faces sharing a vertex share slots.
   void add(Eigen::Index f, const Mat6& H);
-  /// The matrix (lower triangle stored), for diagonal terms the faces do not give.
-  Eigen::SparseMatrix<double>& matrix() { return H_; }
+  /// The diagonal entry of unknown i (the callers' numbering), for terms the faces do not give.
+  double& diagonal(int i) { return H_.valuePtr()[diagonal_[static_cast<size_t>(i)]]; }
   /// Factors the current values with the library's loops on this thread; false when the
   /// matrix is not positive definite.
   bool factorize();
@@ -71,8 +77,10 @@ class FaceHessian {
  private:
   std::vector<Dof> dof_;
   int n_ = 0;
-  Eigen::SparseMatrix<double> H_;
-  std::vector<int> slots_;  // per face, 36 entries: the value index of each Hessian entry (-1: none)
+  std::vector<int> position_;  // per unknown, its row and column in H_ (the ordering's inverse)
+  Eigen::SparseMatrix<double> H_;  // lower triangle, permuted
+  std::vector<int> slots_;     // per face, 36 entries: the value index of each Hessian entry (-1: none)
+  std::vector<int> diagonal_;  // per unknown, the value index of its diagonal entry
   Factor llt_;
 };
 

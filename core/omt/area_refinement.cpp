@@ -387,14 +387,15 @@ class FaceNewton {
     }
     // The circle's curvature: along x(tau) = (x + tau t) / |x + tau t|, x'' = -x, so the energy's
     // second derivative gains -grad . x (kept only where positive: the Hessian stays definite).
-    Eigen::SparseMatrix<double>& H = H_.matrix();
     for (size_t r = 0; r < dof_.size(); ++r)
       if (dof_[r].count == 1)
-        H.coeffRef(dof_[r].offset, dof_[r].offset) += std::max(0.0, -circle_g[r].dot(X.row(r).head<2>().transpose()));
+        H_.diagonal(dof_[r].offset) += std::max(0.0, -circle_g[r].dot(X.row(r).head<2>().transpose()));
     // A small multiple of the diagonal's mean keeps the clamped Hessian definite (the
     // sphere's energy is invariant under rotations).
-    const double shift = 1e-9 * H.diagonal().sum() / n_;
-    for (int i = 0; i < n_; ++i) H.coeffRef(i, i) += shift;
+    double trace = 0;
+    for (int i = 0; i < n_; ++i) trace += H_.diagonal(i);
+    const double shift = 1e-9 * trace / n_;
+    for (int i = 0; i < n_; ++i) H_.diagonal(i) += shift;
     if (!H_.factorize()) return 0;
     const double E0 = before = energy(X, theta);
     const Eigen::VectorXd d = -H_.solve(g);

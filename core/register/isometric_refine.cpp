@@ -508,16 +508,19 @@ class Refiner {
     // 1e-2 to 1e24, and a shift of the mean held every other vertex still while the rows of
     // 1e24 needed their own. On the plane that rule made lion-head's twisted pair, OMT route,
     // worse (0.0191 -> 0.0219; bench/RESULTS.md, session 67).
-    Eigen::SparseMatrix<double>& M = hessian_->matrix();
+    const int n = hessian_->size();
     if (sphere_) {
-      Eigen::VectorXd diagonal = M.diagonal();
+      Eigen::VectorXd diagonal(n);
+      for (int r = 0; r < n; ++r) diagonal[r] = hessian_->diagonal(r);
       auto middle = diagonal.data() + diagonal.size() / 2;
       std::nth_element(diagonal.data(), middle, diagonal.data() + diagonal.size());
       const double floor = *middle;
-      for (int r = 0; r < hessian_->size(); ++r) M.coeffRef(r, r) += 1e-6 * (M.coeffRef(r, r) + floor);
+      for (int r = 0; r < n; ++r) hessian_->diagonal(r) += 1e-6 * (hessian_->diagonal(r) + floor);
     } else {
-      const double shift = 1e-6 * M.diagonal().sum() / hessian_->size();
-      for (int r = 0; r < hessian_->size(); ++r) M.coeffRef(r, r) += shift;
+      double trace = 0;
+      for (int r = 0; r < n; ++r) trace += hessian_->diagonal(r);
+      const double shift = 1e-6 * trace / n;
+      for (int r = 0; r < n; ++r) hessian_->diagonal(r) += shift;
     }
     if (!hessian_->factorize()) fail(ErrorCode::kInternal, "the isometric refinement's system is not positive definite");
     const Eigen::VectorXd z = hessian_->solve(rhs);
