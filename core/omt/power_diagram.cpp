@@ -485,7 +485,7 @@ Eigen::VectorXd PowerDiagrams::smoothed_max(const Eigen::VectorXd& h, const Poin
           }
         }
       }
-      // The terms within e^-40 of the largest, found by a search from it over the lists.
+      // The terms within e^-kSmoothedMaxCut of the largest, found by a search from it over the lists.
       double sum = 0;
       queue.assign(1, v);
       stamp[v] = q;
@@ -493,7 +493,7 @@ Eigen::VectorXd PowerDiagrams::smoothed_max(const Eigen::VectorXd& h, const Poin
         const int w = queue.back();
         queue.pop_back();
         const double t = (value(w) - top) / eps;
-        if (!(t > -40)) continue;  // (the maximum itself always counts: t = 0)
+        if (!(t > -kSmoothedMaxCut)) continue;  // (the maximum itself always counts: t = 0)
         sum += std::exp(t);
         for (int j = start[w]; j < start[w + 1]; ++j)
           if (stamp[nbr[j]] != q) {
