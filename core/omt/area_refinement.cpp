@@ -369,6 +369,10 @@ class FaceNewton {
     for (long k = 0; k < nf; ++k) {
       const Local full = geometry_.derivatives(X, faces_[k], theta);
       for (int p = 0; p < 3; ++p) corner_g_[k * 3 + p] = full.g.segment<2>(2 * p);
+      if (all_free(faces_[k])) {  // the reduction is the identity
+        local_[k] = full;
+        continue;
+      }
       const Mat6 T = reduction(faces_[k]);
       local_[k] = {T.transpose() * full.g, T.transpose() * full.H * T};
     }
@@ -429,6 +433,12 @@ class FaceNewton {
       if (d.count == 1) T.block<2, 1>(2 * p, 2 * p) = tangent_[f.v[p]];
     }
     return T;
+  }
+  // Whether each corner of f has its two coordinates as unknowns (the plane's inner vertices,
+  // every vertex on the sphere): the reduction is then the identity, and the 6x6 products it
+  // costs were a quarter of the derivatives' time (100K-vertex disk map: 33 -> 24 ms a step).
+  bool all_free(const detail::BarrierFace& f) const {
+    return dof_[f.v[0]].count == 2 && dof_[f.v[1]].count == 2 && dof_[f.v[2]].count == 2;
   }
   // The 2-D step of vertex r in its geometry's frame.
   Eigen::Vector2d step_of(int r, const Eigen::VectorXd& d) const {
