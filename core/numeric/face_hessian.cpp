@@ -40,8 +40,11 @@ int slot_of(const Eigen::SparseMatrix<double>& H, int r, int c) {
 std::vector<int> fill_reducing_order(const Eigen::SparseMatrix<double>& H, cholmod_common& c) {
   c.nmethods = 1;
   c.method[0].ordering = CHOLMOD_NESDIS;
+  const int mode = c.supernodal;
+  c.supernodal = CHOLMOD_SIMPLICIAL;  // the ordering only: no supernodal symbolic pass
   cholmod_sparse A = Eigen::viewAsCholmod(H.selfadjointView<Eigen::Lower>());
   cholmod_factor* L = cholmod_analyze(&A, &c);
+  c.supernodal = mode;
   BRENIER_CHECK(L != nullptr, "CHOLMOD could not order the Hessian (status " << c.status << ")");
   const int* perm = static_cast<const int*>(L->Perm);
   std::vector<int> order(perm, perm + H.rows());
