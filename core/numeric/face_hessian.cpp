@@ -103,6 +103,13 @@ bool FaceHessian::factorize() {
   return llt_.info() == Eigen::Success;
 }
 
+void FaceHessian::shift_diagonal_by_mean(double fraction) {
+  double trace = 0;
+  for (int i = 0; i < n_; ++i) trace += diagonal(i);
+  const double shift = fraction * trace / n_;
+  for (int i = 0; i < n_; ++i) diagonal(i) += shift;
+}
+
 Eigen::VectorXd FaceHessian::solve(const Eigen::VectorXd& b) const {
   Eigen::VectorXd permuted(n_);
   for (int i = 0; i < n_; ++i) permuted[position_[static_cast<size_t>(i)]] = b[i];

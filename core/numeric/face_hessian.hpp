@@ -68,6 +68,10 @@ class FaceHessian {
   void add(Eigen::Index f, const Mat6& H);
   /// The diagonal entry of unknown i (the callers' numbering), for terms the faces do not give.
   double& diagonal(int i) { return H_.valuePtr()[diagonal_[static_cast<size_t>(i)]]; }
+  /// Adds `fraction` of the diagonal's mean to every diagonal entry (a Levenberg-Marquardt
+  /// shift that keeps a clamped or rank-deficient Hessian definite); the mean is summed in
+  /// the callers' numbering.
+  void shift_diagonal_by_mean(double fraction);
   /// Factors the current values with the library's loops on this thread; false when the
   /// matrix is not positive definite.
   bool factorize();

@@ -396,10 +396,7 @@ class FaceNewton {
         H_.diagonal(dof_[r].offset) += std::max(0.0, -circle_g[r].dot(X.row(r).head<2>().transpose()));
     // A small multiple of the diagonal's mean keeps the clamped Hessian definite (the
     // sphere's energy is invariant under rotations).
-    double trace = 0;
-    for (int i = 0; i < n_; ++i) trace += H_.diagonal(i);
-    const double shift = 1e-9 * trace / n_;
-    for (int i = 0; i < n_; ++i) H_.diagonal(i) += shift;
+    H_.shift_diagonal_by_mean(1e-9);
     if (!H_.factorize()) return 0;
     const double E0 = before = energy(X, theta);
     const Eigen::VectorXd d = -H_.solve(g);

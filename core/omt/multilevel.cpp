@@ -2,6 +2,7 @@
 // approach to optimal transport"; Levy 2015's multilevel solver in geogram): the Newton
 // iterations of Alg. 2 are solved first for an eighth of the sites carrying the masses of
 // their neighbours, recursively, and the finer problem starts from the coarse solution.
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <vector>
@@ -13,6 +14,49 @@
 namespace brenier::omt {
 
 namespace detail {
+
+namespace {
+
+// The coarse potential u_c (coarse_to_fine.hpp) is affine on each coarse cell, so its Legendre
+// transform at a fine site y, sup_x <x, y> - u_c(x), is reached at a corner of some cell. For
+// a site on the hull of the sites (a disk map's boundary vertex, on the circle) that corner
+// lies on the domain's outline, half a coarse cell from the nearest centroid: sampled at the
+// centroids alone the transform fell short there, the site's height came out too high and
+// its start cell too large (the 100K-vertex disk map's boundary sites 18-30 times their
+// targets, 465 of 554 above 3 times). Samples on the outline, one per fine site spacing,
+// where u_c is evaluated exactly, bring that down to 10 (84 above 3 times); that map's
+// transport takes 23 Newton iterations over its levels instead of 26, the fine level 8
+// instead of 9 (bench/RESULTS.md, session 77). Their weight, in fine cells' mass: 1 left the
+// largest at 20, 8 damped the fine level's first step to 1/64; 4 is between.
+// Not on domains with a density (the shape distances' conformal images): there the samples
+// cost the real pairs Newton iterations (lion-head x mannequin-devil 99 -> 105,
+// mannequin-devil x cylinder_locally_refined 63 -> 71), weighted as above or by a share of
+// the coarse cell's mass alike.
+constexpr double kOutlineSampleCells = 4;
+
+// Points `spacing` apart on the domain's outline (the circle, or the polygon's sides).
+Points outline_points(const Domain& domain, double spacing) {
+  std::vector<Eigen::RowVector2d> p;
+  if (domain.is_disk) {
+    const int k = static_cast<int>(std::ceil(2 * std::numbers::pi * domain.radius / spacing));
+    for (int i = 0; i < k; ++i) {
+      const double a = 2 * std::numbers::pi * i / k;
+      p.emplace_back(domain.radius * std::cos(a), domain.radius * std::sin(a));
+    }
+  } else {
+    const Eigen::Index corners = domain.polygon.rows();
+    for (Eigen::Index e = 0; e < corners; ++e) {
+      const Eigen::RowVector2d a = domain.polygon.row(e), b = domain.polygon.row((e + 1) % corners);
+      const int k = std::max(1, static_cast<int>(std::ceil((b - a).norm() / spacing)));
+      for (int i = 0; i < k; ++i) p.push_back(a + (b - a) * (static_cast<double>(i) / k));
+    }
+  }
+  Points out(static_cast<Eigen::Index>(p.size()), 2);
+  for (size_t i = 0; i < p.size(); ++i) out.row(static_cast<Eigen::Index>(i)) = p[i];
+  return out;
+}
+
+}  // namespace
 
 std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, const Points& sites,
                                                       const Eigen::VectorXd& nu, const OmtOptions& opt,
@@ -53,7 +97,25 @@ std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, cons
   // iterations (0.05 and 0.08: 93 and 92 there, but more on the others; bench/RESULTS.md,
   // session 20).
   const double eps = 2 * std::numbers::pi / std::sqrt(static_cast<double>(n) * m);
-  return smoothed_dual(coarse, c.cells.centroid, c.h, c.cells.mass, sites, eps, 0.03);
+  if (domain.density) return smoothed_dual(coarse, c.cells.centroid, c.h, c.cells.mass, sites, eps, 0.03);
+  // Uniform density: the samples at the centroids, then on the outline (outline_points), each
+  // of those with the coarse cell that holds it and four fine cells' mass.
+  const Points outline = outline_points(domain, std::sqrt(domain.area() / n));
+  const std::vector<int> holder = coarse_diagram.locate(c.h, outline);
+  const int k = static_cast<int>(outline.rows());
+  Points Y(m + k, 2), X(m + k, 2);
+  Eigen::VectorXd H(m + k), mass(m + k);
+  Y.topRows(m) = coarse;
+  X.topRows(m) = c.cells.centroid;
+  H.head(m) = c.h;
+  mass.head(m) = c.cells.mass;
+  X.bottomRows(k) = outline;
+  for (int b = 0; b < k; ++b) {
+    Y.row(m + b) = coarse.row(holder[b]);
+    H[m + b] = c.h[holder[b]];
+    mass[m + b] = kOutlineSampleCells * domain.area() / n;
+  }
+  return smoothed_dual(Y, X, H, mass, sites, eps, 0.03);
 }
 
 }  // namespace detail

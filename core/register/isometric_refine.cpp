@@ -517,10 +517,7 @@ class Refiner {
       const double floor = *middle;
       for (int r = 0; r < n; ++r) hessian_->diagonal(r) += 1e-6 * (hessian_->diagonal(r) + floor);
     } else {
-      double trace = 0;
-      for (int r = 0; r < n; ++r) trace += hessian_->diagonal(r);
-      const double shift = 1e-6 * trace / n;
-      for (int r = 0; r < n; ++r) hessian_->diagonal(r) += shift;
+      hessian_->shift_diagonal_by_mean(1e-6);
     }
     if (!hessian_->factorize()) fail(ErrorCode::kInternal, "the isometric refinement's system is not positive definite");
     const Eigen::VectorXd z = hessian_->solve(rhs);

@@ -26,7 +26,7 @@ brenier::mesh::Faces grid_faces(int k) {
 }  // namespace
 
 // The Hessian is stored and factored in CHOLMOD's fill-reducing order, while its callers add
-// faces' blocks, read and shift diagonal entries and solve in their own numbering of the
+// faces' blocks, read and shift diagonal entries (one by one and by the mean) and solve in their own numbering of the
 // unknowns. Held vertices, vertices with one unknown and with two are mixed, and the solution
 // must be the dense system's, assembled in the callers' numbering.
 TEST(FaceHessian, SolvesInTheCallersNumberingWhateverTheOrdering) {
@@ -61,6 +61,10 @@ TEST(FaceHessian, SolvesInTheCallersNumberingWhateverTheOrdering) {
     H.diagonal(i) += shift;
     dense(i, i) += shift;
   }
+  // A shift by a fraction of the diagonal's mean (the refinements' Levenberg-Marquardt term).
+  H.shift_diagonal_by_mean(0.25);
+  dense.diagonal().array() += 0.25 * dense.diagonal().mean();
+  for (int i = 0; i < n; ++i) EXPECT_NEAR(H.diagonal(i), dense(i, i), 1e-12 * dense(i, i)) << "unknown " << i;
   ASSERT_TRUE(H.factorize());
   Eigen::VectorXd b(n);
   for (int i = 0; i < n; ++i) b[i] = N(rng);
