@@ -26,8 +26,11 @@ namespace {
 // targets, 465 of 554 above 3 times). Samples on the outline, one per fine site spacing,
 // where u_c is evaluated exactly, bring that down to 10 (84 above 3 times); that map's
 // transport takes 23 Newton iterations over its levels instead of 26, the fine level 8
-// instead of 9 (bench/RESULTS.md, session 77). Their weight, in fine cells' mass: 1 left the
-// largest at 20, 8 damped the fine level's first step to 1/64; 4 is between.
+// instead of 9; omt-bench's Gaussian masses with --multilevel --no-probe 28 -> 23 at 10K
+// sites and 39 -> 33 at 100K (bench/RESULTS.md, session 77). Their weight, in fine cells'
+// mass (the map / 10K / 100K): 1: 25 / 25 / 33; 2 and 4: 23 / 23 / 32-33; 8: 25 / 23 / 33;
+// 64: 28 / 25 / 33. A share of the holding coarse cell's mass (0.25-2 of it) instead: 27-29
+// and 39-43 Newton iterations on the Gaussian.
 // Not on domains with a density (the shape distances' conformal images): there the samples
 // cost the real pairs Newton iterations (lion-head x mannequin-devil 99 -> 105,
 // mannequin-devil x cylinder_locally_refined 63 -> 71), weighted as above or by a share of
