@@ -1774,3 +1774,49 @@ TEST(Omt, TheCoarseToFineStartGivesTheOutlinesSitesTheirShare) {
   EXPECT_TRUE(solved.warm_started);
   EXPECT_LE(max_relative(solved.cells.mass, solved.target), 1e-8);
 }
+
+TEST(PowerCells, LocateFindsEveryQuerysCellInAnyOrderAndBreaksTiesByIndex) {
+  // Sites in no spatial order with random heights, queries in no spatial order (as omt-bench's
+  // random sites against their coarse subset): each query's answer must maximize <x, y_i> + h_i
+  // (to round-off of that double evaluation).
+  const int n = 3000, nq = 20000;
+  const Points y = random_in_disk(n, 51, 1.0), x = random_in_disk(nq, 52, 1.0);
+  std::mt19937 rng(53);
+  std::uniform_real_distribution<double> U(-0.01, 0.01);
+  Eigen::VectorXd h(n);
+  for (int i = 0; i < n; ++i) h[i] = -0.5 * y.row(i).squaredNorm() + U(rng);
+  const omt::PowerDiagrams diagram(Domain::unit_disk(), y, false);
+  const std::vector<int> at = diagram.locate(h, x);
+  int wrong = 0;
+  for (int q = 0; q < nq; ++q) {
+    const Eigen::VectorXd value = y * x.row(q).transpose() + h;
+    wrong += value[at[q]] < value.maxCoeff() - 1e-12;
+  }
+  EXPECT_EQ(wrong, 0);
+  // Queries exactly on the bisectors of a grid's Voronoi diagram (binary fractions, so the
+  // midpoints are exact) and at its vertices: the least index among the tied sites, however
+  // the queries are ordered.
+  const int k = 12;
+  Points grid(k * k, 2);
+  for (int i = 0; i < k; ++i)
+    for (int j = 0; j < k; ++j) grid.row(i * k + j) << (i - k / 2) / 16.0, (j - k / 2) / 16.0;
+  Points ties(3 * (k - 1) * (k - 1), 2);
+  std::vector<int> expected;
+  int t = 0;
+  for (int i = 0; i + 1 < k; ++i)
+    for (int j = 0; j + 1 < k; ++j) {
+      const int a = i * k + j;
+      ties.row(t++) = 0.5 * (grid.row(a) + grid.row(a + k));      // between a and a + k
+      expected.push_back(a);
+      ties.row(t++) = 0.5 * (grid.row(a) + grid.row(a + 1));      // between a and a + 1
+      expected.push_back(a);
+      ties.row(t++) = 0.25 * (grid.row(a) + grid.row(a + 1) + grid.row(a + k) + grid.row(a + k + 1));  // four
+      expected.push_back(a);
+    }
+  const omt::PowerDiagrams voronoi(Domain::unit_disk(), grid, false);
+  const Eigen::VectorXd flat = -0.5 * grid.rowwise().squaredNorm();
+  EXPECT_EQ(voronoi.locate(flat, ties), expected);
+  Points reversed = ties.colwise().reverse();
+  std::vector<int> back(expected.rbegin(), expected.rend());
+  EXPECT_EQ(voronoi.locate(flat, reversed), back);
+}
