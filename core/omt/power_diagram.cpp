@@ -400,19 +400,24 @@ namespace {
 
 // Greedy walk (as CGAL's nearest_power_vertex, but from a given vertex): move to a neighbour
 // of smaller power distance to p until none is; on a regular triangulation the local
-// minimum is the global one. Exact predicates decide every comparison.
-RT::Vertex_handle walk_to_nearest(const RT& rt, RT::Vertex_handle v, const K::Point_2& p) {
+// minimum is the global one. Exact predicates decide every comparison. `tied` tells whether
+// a neighbour of the answer is as near to p.
+RT::Vertex_handle walk_to_nearest(const RT& rt, RT::Vertex_handle v, const K::Point_2& p, bool& tied) {
   const auto closer = K().compare_power_distance_2_object();
   for (bool moved = true; moved;) {
     moved = false;
+    tied = false;
     RT::Vertex_circulator c = rt.incident_vertices(v), first = c;
     if (c == nullptr) break;
     do {
-      if (!rt.is_infinite(c) && closer(p, c->point(), v->point()) == CGAL::SMALLER) {
+      if (rt.is_infinite(c)) continue;
+      const CGAL::Comparison_result r = closer(p, c->point(), v->point());
+      if (r == CGAL::SMALLER) {
         v = c;
         moved = true;
         break;
       }
+      tied = tied || r == CGAL::EQUAL;
     } while (++c != first);
   }
   return v;
@@ -467,8 +472,9 @@ std::vector<int> PowerDiagrams::locate(const Eigen::VectorXd& h, const Points& q
     for (size_t k = 0; k < order.size(); ++k) {
       const int q = order[k];
       const K::Point_2 p(queries(q, 0), queries(q, 1));
-      v = walk_to_nearest(rt, v, p);
-      out[q] = least_tied(rt, v, p);
+      bool tied = false;
+      v = walk_to_nearest(rt, v, p, tied);
+      out[q] = tied ? least_tied(rt, v, p) : v->info();
     }
   }
   return out;
