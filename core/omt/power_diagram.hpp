@@ -122,7 +122,8 @@ class PowerDiagrams {
   /// The offsets of heights h.
   Eigen::VectorXd offsets(const Eigen::VectorXd& h) const;
   /// For each query point x, the site whose cell at heights h holds it (argmax_i <x, y_i> +
-  /// h_i, exact predicates; ties go to either); the plane's cells, unclipped by the domain.
+  /// h_i, exact predicates; a tie goes to the least site index); the plane's cells, unclipped by
+  /// the domain. The queries may come in any order.
   std::vector<int> locate(const Eigen::VectorXd& h, const Points& queries) const;
   /// For each query point x, the smoothed maximum  eps log sum_i exp((<x, y_i> + h_i - M) /
   /// eps) + M,  M = max_i <x, y_i> + h_i, summed over the terms within kSmoothedMaxCut eps of
