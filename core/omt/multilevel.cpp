@@ -113,10 +113,10 @@ std::optional<Eigen::VectorXd> coarse_to_fine_heights(const Domain& domain, cons
   H.head(m) = c.h;
   mass.head(m) = c.cells.mass;
   X.bottomRows(k) = outline;
+  mass.tail(k).setConstant(kOutlineSampleCells * domain.area() / n);
   for (int b = 0; b < k; ++b) {
     Y.row(m + b) = coarse.row(holder[b]);
     H[m + b] = c.h[holder[b]];
-    mass[m + b] = kOutlineSampleCells * domain.area() / n;
   }
   return smoothed_dual(Y, X, H, mass, sites, eps, 0.03);
 }
