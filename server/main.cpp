@@ -240,7 +240,7 @@ int serve(const Flags& f) {
 
 int main(int argc, char** argv) {
   brenier::process::reexec_with_runtime_settings(argv);
-  brenier::process::tune_allocator();
+  brenier::process::tune_allocator(brenier::process::Lifetime::kDaemon);
   install_stop_handlers();
   CLI::App app{"brenierd: conformal maps, optimal-transport maps and shape distances as a gRPC service"};
   Flags f;

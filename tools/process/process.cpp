@@ -61,9 +61,10 @@ void reexec_with_runtime_settings(char** argv) {
   if (changed) ::execv("/proc/self/exe", argv);  // returns only on failure: then run as we are
 }
 
-void tune_allocator() {
+void tune_allocator(Lifetime lifetime) {
   mallopt(M_TRIM_THRESHOLD, 32 << 20);
   mallopt(M_MMAP_THRESHOLD, 16 << 20);
+  if (lifetime == Lifetime::kOneShot) mallopt(M_MMAP_MAX, 0);
 }
 
 }  // namespace brenier::process

@@ -27,12 +27,22 @@ bool choose_blas_kernels();
 /// malloc's transparent huge pages off (process.cpp says why).
 void reexec_with_runtime_settings(char** argv);
 
+/// Who runs: a program that computes one thing and exits (brenier-compute, the benches), or
+/// the daemon, which runs job after job.
+enum class Lifetime { kOneShot, kDaemon };
+
 /// Called first in main(): glibc's malloc keeps up to 32 MB freed at the top of each arena
 /// and serves blocks below 16 MB from the arenas instead of returning memory to the kernel
 /// as soon as it is freed (its defaults, 128 KB, adapt upwards only slowly). The solvers free
 /// and reallocate their per-iteration arrays, and every page given back was faulted in again
 /// on the next iteration (page faults were a noticeable share of a Wasserstein pair's time;
 /// bench/RESULTS.md). At most 32 MB per arena stays reserved.
-void tune_allocator();
+/// kOneShot also serves the blocks above the mmap threshold's 32 MB cap from the heap (a
+/// 1M-site transport's edge lists, Hessians and factors, reallocated at every Newton
+/// iteration), so that they too are reused instead of faulted in again: omt-bench's 1M equal
+/// masses 20.2 -> 19.2 s (medians of six alternated runs), peak 1.30 -> 1.38 GB; nothing
+/// measurable below 1M sites (bench/RESULTS.md, session 78). The daemon keeps returning such blocks to the kernel: it
+/// would otherwise hold the holes its largest job left for good.
+void tune_allocator(Lifetime lifetime = Lifetime::kOneShot);
 
 }  // namespace brenier::process
