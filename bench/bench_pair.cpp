@@ -26,7 +26,7 @@ using namespace brenier;
 
 int main(int argc, char** argv) {
   process::reexec_with_runtime_settings(argv);  // as the tools run
-  process::tune_allocator();
+  process::tune_allocator(process::Lifetime::kOneShot);
   if (argc < 3) {
     std::fprintf(stderr, "usage: bench_pair A B [repeats] [threads]\n");
     return 2;

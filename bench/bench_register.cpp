@@ -265,7 +265,7 @@ int time_one(const std::string& path, int subdivide) {
 
 int main(int argc, char** argv) {
   process::reexec_with_runtime_settings(argv);  // as the tools run (passive OpenMP waits, BLAS kernels)
-  process::tune_allocator();
+  process::tune_allocator(process::Lifetime::kOneShot);
   if (argc < 3) {
     std::fprintf(stderr, "usage: bench_register eval [--samples N] [--landmarks K] [--euclidean] [--no-isometric] [--isometric-sphere] [--from-truth] [--deform NAME] MESH... | time MESH [--subdivide S]\n");
     return 2;

@@ -19,7 +19,7 @@ using namespace brenier;
 
 int main(int argc, char** argv) {
   process::reexec_with_runtime_settings(argv);
-  process::tune_allocator();
+  process::tune_allocator(process::Lifetime::kOneShot);
   const int density_level = argc > 1 ? std::atoi(argv[1]) : 5;
   const int site_level = argc > 2 ? std::atoi(argv[2]) : 4;
   const int repeats = argc > 3 ? std::atoi(argv[3]) : 5;

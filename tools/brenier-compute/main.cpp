@@ -40,7 +40,7 @@ int exit_code_for(brenier::ErrorCode code) {
 
 int main(int argc, char** argv) {
   brenier::process::reexec_with_runtime_settings(argv);
-  brenier::process::tune_allocator();
+  brenier::process::tune_allocator(brenier::process::Lifetime::kOneShot);
   CLI::App app{"brenier-compute: conformal and optimal-mass-transport maps of surfaces"};
   app.require_subcommand(1);
   app.set_version_flag("--version", "brenier-compute 0.1.0");

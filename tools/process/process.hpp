@@ -37,12 +37,13 @@ enum class Lifetime { kOneShot, kDaemon };
 /// and reallocate their per-iteration arrays, and every page given back was faulted in again
 /// on the next iteration (page faults were a noticeable share of a Wasserstein pair's time;
 /// bench/RESULTS.md). At most 32 MB per arena stays reserved.
-/// kOneShot also serves the blocks above the mmap threshold's 32 MB cap from the heap (a
-/// 1M-site transport's edge lists, Hessians and factors, reallocated at every Newton
-/// iteration), so that they too are reused instead of faulted in again: omt-bench's 1M equal
-/// masses 20.2 -> 19.2 s (medians of six alternated runs), peak 1.30 -> 1.38 GB; nothing
-/// measurable below 1M sites (bench/RESULTS.md, session 78). The daemon keeps returning such blocks to the kernel: it
-/// would otherwise hold the holes its largest job left for good.
-void tune_allocator(Lifetime lifetime = Lifetime::kOneShot);
+/// kOneShot also serves from the heap the blocks above the mmap threshold (16 MB here; glibc
+/// lets it be raised to 32 MB at most): a 1M-site transport's edge lists, Hessians and factors,
+/// reallocated at every Newton iteration, are then reused instead of faulted in again.
+/// omt-bench's 1M equal masses 20.2 -> 19.2 s (medians of six alternated runs), peak 1.30 ->
+/// 1.38 GB; nothing measurable below 1M sites (bench/RESULTS.md, session 78). kDaemon keeps
+/// returning such blocks to the kernel: a server would otherwise hold the holes its largest
+/// job left for good. Each main() states which it is.
+void tune_allocator(Lifetime lifetime);
 
 }  // namespace brenier::process
