@@ -1,9 +1,17 @@
 // brenier-compute omt-bench: the semi-discrete OT solver on synthetic problems (issue 4's
 // benchmark): the uniform disk or square to N random sites, uniform in the domain, with
 // equal masses or masses proportional to exp(-8 |p|^2) (ratio about 3000 on the disk).
-// --multilevel times the coarse-to-fine start (with the plain start's probe, or without it:
-// --no-probe) on the same problem. BENCH_TRACE=1 in the environment prints each Newton
-// iteration's error and clock time to stderr (as bench_pair does).
+// --start says where the Newton iterations start (OmtOptions::multilevel, multilevel_probe):
+//   coarse (the default): the coarse-to-fine start wherever Alg. 2's Voronoi start leaves a
+//     cell 10x off its target, as the area-preserving maps take it; so the benchmark times the
+//     transport users get. Equal masses never trigger it (1M sites: one level, 6 iterations).
+//   probe: that start only where the plain start's first Newton step is damped below 1/4,
+//     as the distances take it;
+//   plain: the seed's Alg. 2 alone (the default before session 79).
+// --multilevel [--no-probe], the flags before --start, still mean probe [coarse].
+// Gaussian masses, 2 cores (bench/RESULTS.md, session 79): 10K 0.19 -> 0.165 s, 100K 2.66 ->
+// 2.25 s, the square's 100K 5.4 -> 2.9 s, plain against coarse. BENCH_TRACE=1 in the environment
+// prints each Newton iteration's error and clock time to stderr (as bench_pair does).
 #include <sys/resource.h>
 
 #include <chrono>
@@ -29,7 +37,8 @@ struct BenchOptions {
   unsigned seed = 1;
   double tolerance = 1e-8;
   bool json = false;
-  bool multilevel = false, probe = true;
+  std::string start = "coarse";
+  bool multilevel = false, no_probe = false;  // the flags before --start
 };
 
 int run_bench(const BenchOptions& o) {
@@ -45,8 +54,9 @@ int run_bench(const BenchOptions& o) {
   for (int i = 0; i < o.sites; ++i) nu[i] = o.masses == "equal" ? 1.0 : std::exp(-8 * y.row(i).squaredNorm());
   omt::OmtOptions opt;
   opt.tolerance = o.tolerance;
-  opt.multilevel = o.multilevel;
-  opt.multilevel_probe = o.probe;
+  const std::string start = o.multilevel ? (o.no_probe ? "coarse" : "probe") : o.start;
+  opt.multilevel = start != "plain";
+  opt.multilevel_probe = start == "probe";
   auto t0 = std::chrono::steady_clock::now();
   if (std::getenv("BENCH_TRACE"))
     opt.progress = [t0](int it, double e) {
@@ -68,17 +78,19 @@ int run_bench(const BenchOptions& o) {
                       {"converged", r.converged},
                       {"empty_cells", r.cells.empty_cells},
                       {"factorizations", r.factorizations},
-                     {"multilevel", o.multilevel},
-                     {"levels", r.levels},
+                      {"start", start},
+                      {"multilevel", opt.multilevel},
+                      {"levels", r.levels},
                       {"linear_iterations", r.linear_iterations},
                       {"mass_ratio", r.target.maxCoeff() / r.target.minCoeff()},
                       {"peak_rss_mb", ru.ru_maxrss / 1024.0}};
   if (o.json)
     std::cout << j.dump(2) << std::endl;
   else
-    std::printf("%s, %d sites, %s masses: %.3f s, %d Newton iterations, max relative error %.2e, %d empty, %.0f MB\n",
-                o.domain.c_str(), o.sites, o.masses.c_str(), secs, r.iterations, r.max_relative_error,
-                r.cells.empty_cells, ru.ru_maxrss / 1024.0);
+    std::printf("%s, %d sites, %s masses, %s start (%d levels): %.3f s, %d Newton iterations, "
+                "max relative error %.2e, %d empty, %.0f MB\n",
+                o.domain.c_str(), o.sites, o.masses.c_str(), start.c_str(), r.levels, secs, r.iterations,
+                r.max_relative_error, r.cells.empty_cells, ru.ru_maxrss / 1024.0);
   return r.converged ? kExitOk : kExitNotConverged;
 }
 
@@ -92,8 +104,16 @@ void add_omt_bench(CLI::App& app, Action& action) {
   cmd->add_option("--masses", o->masses, "equal or gaussian (exp(-8|p|^2))")->check(CLI::IsMember({"equal", "gaussian"}));
   cmd->add_option("--seed", o->seed, "random seed");
   cmd->add_option("--tolerance", o->tolerance, "max relative cell-mass error")->check(options::positive_number());
-  cmd->add_flag("--multilevel", o->multilevel, "coarse-to-fine start (as the maps and distances use)");
-  cmd->add_flag("--no-probe{false}", o->probe, "with --multilevel: take the coarse start without probing the plain one");
+  cmd->add_option("--start", o->start,
+                  "coarse (coarse-to-fine where the Voronoi start is 10x off, as maps use; default), "
+                  "probe (only where the plain start's first step is damped, as distances use) or plain (Alg. 2)")
+      ->check(CLI::IsMember({"coarse", "probe", "plain"}));
+  // The flags before --start: --multilevel is probe, with --no-probe coarse.
+  auto* ml = cmd->add_flag("--multilevel", o->multilevel, "the same as --start probe")->group("Older flags");
+  cmd->add_flag("--no-probe", o->no_probe, "with --multilevel: the same as --start coarse")
+      ->group("Older flags")
+      ->needs(ml);
+  cmd->get_option("--start")->excludes(ml);
   cmd->add_flag("--json", o->json, "print one JSON object");
   cmd->callback([o, &action] { action = [o] { return run_bench(*o); }; });
 }
