@@ -37,8 +37,8 @@ struct BenchOptions {
   unsigned seed = 1;
   double tolerance = 1e-8;
   bool json = false;
-  std::string start = "coarse";
-  bool multilevel = false, no_probe = false;  // the flags before --start
+  std::string start = "coarse";              // coarse, probe or plain; the older flags set it at parse time
+  bool multilevel = false, no_probe = false;  // the flags before --start, read only by the callback
 };
 
 int run_bench(const BenchOptions& o) {
@@ -54,7 +54,7 @@ int run_bench(const BenchOptions& o) {
   for (int i = 0; i < o.sites; ++i) nu[i] = o.masses == "equal" ? 1.0 : std::exp(-8 * y.row(i).squaredNorm());
   omt::OmtOptions opt;
   opt.tolerance = o.tolerance;
-  const std::string start = o.multilevel ? (o.no_probe ? "coarse" : "probe") : o.start;
+  const std::string& start = o.start;
   opt.multilevel = start != "plain";
   opt.multilevel_probe = start == "probe";
   auto t0 = std::chrono::steady_clock::now();
@@ -115,7 +115,10 @@ void add_omt_bench(CLI::App& app, Action& action) {
       ->needs(ml);
   cmd->get_option("--start")->excludes(ml);
   cmd->add_flag("--json", o->json, "print one JSON object");
-  cmd->callback([o, &action] { action = [o] { return run_bench(*o); }; });
+  cmd->callback([o, &action] {
+    if (o->multilevel) o->start = o->no_probe ? "coarse" : "probe";
+    action = [o] { return run_bench(*o); };
+  });
 }
 
 }  // namespace brenier::tools
