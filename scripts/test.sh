@@ -7,6 +7,7 @@
 #                                        race, service and CLI-inspect tests (brenierd itself
 #                                        sanitized), and the fuzz targets built and run briefly
 #   scripts/test.sh --sanitize thread    clang + ThreadSanitizer in build-tsan/: the same tests
+#                                        (both leave the seven longest numeric solves to Release)
 #   scripts/test.sh --sanitize all       both sanitizer runs (CI runs this after the plain one)
 #
 # Why these suites: the real-mesh suites and the CLI map and distance runs are minutes of
@@ -55,8 +56,21 @@ sanitized() {  # $1: address or thread
     # it; accesses inside uninstrumented libraries (libomp, gRPC) are not checked.
     export TSAN_OPTIONS="halt_on_error=1:second_deadlock_stack=1:ignore_noninstrumented_modules=1:suppressions=$SUPP/tsan.supp"
     export OMP_TOOL_LIBRARIES=/usr/lib/llvm-14/lib/libarcher.so
-    # A sanitized build registers no real-mesh suite (tests/CMakeLists.txt): every test it has runs.
-    ctest --output-on-failure -j "$JOBS" --timeout 1500
+    # A sanitized build registers no real-mesh suite (tests/CMakeLists.txt). Of the tests it
+    # has, the longest numeric solves are left to the Release run: each is 1-5 minutes under
+    # ASan (about half the sanitized numerics' time in CI) for code that shorter sanitized
+    # tests run on small inputs: the multilevel starts (Omt.TheMultilevelStartIsTaken...,
+    # Omt.AStalledCoarseToFine...), the stall watch (Omt.AStallWatchFires...), the surface
+    # transport on two threads (SurfaceOmt.TheDampedStepsAreTheSameOnOneThreadAsOnTwo) and the
+    # sphere distances (Distance.OnTheSphere..., Distance.SphereShapesWithMergedSites...).
+    local long_numerics='^(Distance\.ASpherePairWithOneCrowdedDensityIsTheTransportFromTheOther'
+    long_numerics+='|Distance\.ASphereTransportThatStallsIsSolvedAgainAtALowerCapAndSaysSo'
+    long_numerics+='|Distance\.ASurfaceTransportThatCreepsStopsAsStalledAfterItsWindow'
+    long_numerics+='|SurfaceOmt\.TheMultilevelSolveReachesThePlainSolvesTransport'
+    long_numerics+='|Omt\.TheMultilevelSolveReachesThePlainSolvesTransport'
+    long_numerics+='|Omt\.ThePlanarStallWindowStopsNoSolveThatConvergesAndSaysWhenItStops'
+    long_numerics+='|Omt\.TheAlternativeStartReplacesTheCoarseToFineOneOnlyWhereItsDualIsHigher)$'
+    ctest --output-on-failure -j "$JOBS" --timeout 1500 -E "$long_numerics"
     if [[ $kind == address ]]; then bash "$ROOT/scripts/fuzz.sh" "$dir" --runs 20000; fi
   )
 }

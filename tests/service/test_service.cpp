@@ -108,16 +108,27 @@ const std::string& big_hemisphere() {
   return s;
 }
 
-// About 97K vertices: its transport runs ~1 s past the start of the "omt" stage, where
-// big_hemisphere's runs ~0.25 s, about a short grace period (a race the grace test lost).
+// The rings of the hemispheres whose maps must run for a while (cancel, grace, kill -9,
+// replicas). A sanitized build runs the numerics about ten times slower, so there the mesh has
+// kSlowdown times fewer vertices (rings / sqrt(kSlowdown)): its map still runs about twice as
+// long as the full mesh's in Release, which is what these tests need, at a fifth of the cost
+// (in CI the replica tests took 3-4 minutes each under ASan with the full meshes).
+int rings_for_a_long_run(int rings) {
+  return static_cast<int>(std::lround(rings / std::sqrt(kSlowdown)));
+}
+
+// About 97K vertices (19K sanitized): its transport runs ~1 s past the start of the "omt"
+// stage, where big_hemisphere's runs ~0.25 s, about a short grace period (a race the grace
+// test lost).
 const std::string& bigger_hemisphere() {
-  static const std::string s = off_bytes(mesh::make_hemisphere(180));
+  static const std::string s = off_bytes(mesh::make_hemisphere(rings_for_a_long_run(180)));
   return s;
 }
 
-// About 190K vertices: its area-preserving map runs for several seconds even on a fast build.
+// About 190K vertices (38K sanitized): its area-preserving map runs for several seconds even
+// on a fast build.
 const std::string& huge_hemisphere() {
-  static const std::string s = off_bytes(mesh::make_hemisphere(250));
+  static const std::string s = off_bytes(mesh::make_hemisphere(rings_for_a_long_run(250)));
   return s;
 }
 
