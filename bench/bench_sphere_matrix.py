@@ -9,8 +9,15 @@ reuses them). Prints the wall time and peak memory of the matrix, its JSON summa
 converged, lowered density caps), and for every shape whether its three nearest shapes are its
 own copies; exits 1 if one is not.
 
+With --tiles K the matrix is computed as K tiles (`matrix --tile I/K`), each kept in --tile-dir
+(default WORK_DIR/tiles) with a note of its wall time, summary and the commit that computed it;
+a tile already there is not computed again, and --deadline MINUTES stops the run (the tile under
+way is lost), so a matrix too long for one sitting (the 40 shapes: about 10 hours) is finished
+over several. Once every tile is there, `brenier-compute merge` assembles the matrix and the
+nearest neighbours are read as above.
+
 Usage: bench_sphere_matrix.py BRENIER_COMPUTE DATA_DIR WORK_DIR [--meshes a,b,...] [--remesh-max N]
-                               [--jobs N]
+                               [--jobs N] [--tiles K [--tile-dir DIR] [--deadline MINUTES]]
 """
 import argparse
 import csv
@@ -18,7 +25,9 @@ import json
 import math
 import os
 import random
+import subprocess
 import sys
+import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
@@ -73,6 +82,57 @@ def copies(data, work, names, remesh_max):
     return out
 
 
+def commit():
+    try:
+        return subprocess.run(["git", "-C", HERE, "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def run_tiles(o, cmd, out, n):
+    """Computes the tiles of the matrix not yet in the tile directory, in order, until the
+    deadline; merges them into `out` once all are there. Returns whether the matrix is whole."""
+    tile_dir = o.tile_dir or os.path.join(o.work, "tiles")
+    os.makedirs(tile_dir, exist_ok=True)
+    path = [os.path.join(tile_dir, f"tile-{i:03d}-of-{o.tiles:03d}.json") for i in range(o.tiles)]
+    start = time.time()
+    for i in range(o.tiles):
+        if os.path.exists(path[i]):
+            continue
+        left = None if o.deadline is None else o.deadline * 60 - (time.time() - start)
+        if left is not None and left <= 0:
+            break
+        print(f"tile {i} of {o.tiles}: started at {time.strftime('%H:%M:%S')}", flush=True)
+        partial = path[i] + ".partial"
+        t0 = time.time()
+        try:
+            p = subprocess.run(cmd + ["--tile", f"{i}/{o.tiles}", "-o", partial], stdout=subprocess.PIPE, text=True,
+                               timeout=left)
+        except subprocess.TimeoutExpired:
+            print(f"tile {i}: stopped at the deadline, after {time.time() - t0:.0f} s", flush=True)
+            break
+        if p.returncode not in (0, 3):
+            raise SystemExit(f"tile {i} failed ({p.returncode})")
+        note = {"tile": i, "tiles": o.tiles, "seconds": round(time.time() - t0, 1), "commit": commit(),
+                "jobs": o.jobs, "summary": json.loads(p.stdout) if p.stdout.strip() else None}
+        with open(path[i][:-5] + ".note.json", "w") as f:
+            json.dump(note, f, indent=1)
+        os.replace(partial, path[i])
+        print(f"tile {i}: {note['seconds']} s", flush=True)
+    done = [q for q in path if os.path.exists(q)]
+    print(f"{len(done)} of {o.tiles} tiles in {tile_dir}", flush=True)
+    if len(done) < o.tiles:
+        return False
+    subprocess.run([o.exe, "merge", *path, "-o", out], check=True)
+    notes = [json.load(open(q[:-5] + ".note.json")) for q in path]
+    print(f"{n} shapes: {sum(x['seconds'] for x in notes):.0f} s of tiles, commits "
+          f"{sorted(set(x['commit'] for x in notes))}")
+    for key in ("not_converged", "lowered_density_caps"):
+        print(key + ":", [e for x in notes for e in (x["summary"] or {}).get(key, [])])
+    return True
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("exe")
@@ -81,19 +141,30 @@ def main():
     ap.add_argument("--meshes", default=MESHES)
     ap.add_argument("--remesh-max", type=int, default=0, help="largest mesh given a remeshed copy")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--tiles", type=int, default=1, help="compute the matrix as this many tiles")
+    ap.add_argument("--tile-dir", help="where finished tiles are kept (default WORK_DIR/tiles)")
+    ap.add_argument("--deadline", type=float, help="minutes after which the run stops (with --tiles)")
     o = ap.parse_args()
+    if o.tiles < 1:
+        ap.error("--tiles must be at least 1")
+    if o.deadline is not None and o.tiles == 1:
+        ap.error("--deadline needs --tiles (a run stopped mid-matrix keeps nothing)")
     os.makedirs(o.work, exist_ok=True)
     shapes = copies(o.data, o.work, [x for x in o.meshes.split(",") if x], o.remesh_max)
     label = {os.path.basename(p)[:-4]: c for p, c in shapes}
     out = os.path.join(o.work, "D-sphere.csv")
-    cmd = [o.exe, "matrix", *[p for p, _ in shapes], "-o", out, "--method", "wasserstein", "--domain", "sphere",
+    cmd = [o.exe, "matrix", *[p for p, _ in shapes], "--method", "wasserstein", "--domain", "sphere",
            "--jobs", str(o.jobs), "--json", "--progress", "--cache", os.path.join(o.work, "cache")]
-    text, wall, mb = measured(cmd, stream_stderr=True)
-    if not text.strip():
-        raise SystemExit("the matrix failed")
-    summary = json.loads(text)
-    print(f"{len(shapes)} shapes, {summary['pairs']} pairs: {wall:.1f} s, {mb:.0f} MB peak")
-    print("not converged:", summary.get("not_converged"), "lowered density caps:", summary.get("lowered_density_caps"))
+    if o.tiles == 1:
+        text, wall, mb = measured(cmd + ["-o", out], stream_stderr=True)
+        if not text.strip():
+            raise SystemExit("the matrix failed")
+        summary = json.loads(text)
+        print(f"{len(shapes)} shapes, {summary['pairs']} pairs: {wall:.1f} s, {mb:.0f} MB peak")
+        print("not converged:", summary.get("not_converged"), "lowered density caps:",
+              summary.get("lowered_density_caps"))
+    elif not run_tiles(o, cmd, out, len(shapes)):
+        sys.exit(3)
     rows = list(csv.reader(open(out)))
     names = rows[0][1:]
     d = [[float(x) for x in r[1:]] for r in rows[1:]]
