@@ -110,9 +110,10 @@ const std::string& big_hemisphere() {
 
 // The rings of the hemispheres whose maps must run for a while (cancel, grace, kill -9,
 // replicas). A sanitized build runs the numerics about ten times slower, so there the mesh has
-// kSlowdown times fewer vertices (rings / sqrt(kSlowdown)): its map still runs about twice as
-// long as the full mesh's in Release, which is what these tests need, at a fifth of the cost
-// (in CI the replica tests took 3-4 minutes each under ASan with the full meshes).
+// kSlowdown times fewer vertices (rings / sqrt(kSlowdown)): its map still runs longer than the
+// full mesh's in Release, which is what these tests need, at a fraction of the cost
+// (pg.Service.AnotherReplicaWatchesAndCancelsAJob: 211 s under ASan with the full meshes in
+// CI, 55 s with these, 20 s in Release; bench/RESULTS.md, session 80).
 int rings_for_a_long_run(int rings) {
   return static_cast<int>(std::lround(rings / std::sqrt(kSlowdown)));
 }
