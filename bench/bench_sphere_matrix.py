@@ -96,7 +96,7 @@ def run_tiles(o, cmd, out, n):
     tile_dir = o.tile_dir or os.path.join(o.work, "tiles")
     os.makedirs(tile_dir, exist_ok=True)
     path = [os.path.join(tile_dir, f"tile-{i:03d}-of-{o.tiles:03d}.json") for i in range(o.tiles)]
-    start = time.time()
+    start, built_from = time.time(), commit()  # the tree the run started from, as near the binary as it gets
     for i in range(o.tiles):
         if os.path.exists(path[i]):
             continue
@@ -104,6 +104,7 @@ def run_tiles(o, cmd, out, n):
         if left is not None and left <= 0:
             break
         print(f"tile {i} of {o.tiles}: started at {time.strftime('%H:%M:%S')}", flush=True)
+        # The tile takes its final name only after its note is written, so a tile here always has one.
         partial = path[i] + ".partial"
         t0 = time.time()
         try:
@@ -114,7 +115,7 @@ def run_tiles(o, cmd, out, n):
             break
         if p.returncode not in (0, 3):
             raise SystemExit(f"tile {i} failed ({p.returncode})")
-        note = {"tile": i, "tiles": o.tiles, "seconds": round(time.time() - t0, 1), "commit": commit(),
+        note = {"tile": i, "tiles": o.tiles, "seconds": round(time.time() - t0, 1), "commit": built_from,
                 "jobs": o.jobs, "summary": json.loads(p.stdout) if p.stdout.strip() else None}
         with open(path[i][:-5] + ".note.json", "w") as f:
             json.dump(note, f, indent=1)
