@@ -13,7 +13,8 @@ With --tiles K the matrix is computed as K tiles (`matrix --tile I/K`), each kep
 (default WORK_DIR/tiles) with a note of its wall time, summary and the commit that computed it;
 a tile already there is not computed again, and --deadline MINUTES stops the run (the tile under
 way is lost), so a matrix too long for one sitting (the 40 shapes: about 10 hours) is finished
-over several. Once every tile is there, `brenier-compute merge` assembles the matrix and the
+over several; until then a run ends with the check below on the shapes whose rows are whole.
+Once every tile is there, `brenier-compute merge` assembles the matrix and the
 nearest neighbours are read as above.
 
 Usage: bench_sphere_matrix.py BRENIER_COMPUTE DATA_DIR WORK_DIR [--meshes a,b,...] [--remesh-max N]
@@ -90,7 +91,7 @@ def commit():
         return "unknown"
 
 
-def run_tiles(o, cmd, out, n):
+def run_tiles(o, cmd, out, n, label):
     """Computes the tiles of the matrix not yet in the tile directory, in order, until the
     deadline; merges them into `out` once all are there. Returns whether the matrix is whole."""
     tile_dir = o.tile_dir or os.path.join(o.work, "tiles")
@@ -115,8 +116,11 @@ def run_tiles(o, cmd, out, n):
             break
         if p.returncode not in (0, 3):
             raise SystemExit(f"tile {i} failed ({p.returncode})")
+        summary = json.loads(p.stdout) if p.stdout.strip() else None
+        if summary and "output" in summary:
+            summary["output"] = path[i]  # the name the tile takes below, not the one it was written under
         note = {"tile": i, "tiles": o.tiles, "seconds": round(time.time() - t0, 1), "commit": built_from,
-                "jobs": o.jobs, "summary": json.loads(p.stdout) if p.stdout.strip() else None}
+                "jobs": o.jobs, "summary": summary}
         with open(path[i][:-5] + ".note.json", "w") as f:
             json.dump(note, f, indent=1)
         os.replace(partial, path[i])
@@ -124,6 +128,7 @@ def run_tiles(o, cmd, out, n):
     done = [q for q in path if os.path.exists(q)]
     print(f"{len(done)} of {o.tiles} tiles in {tile_dir}", flush=True)
     if len(done) < o.tiles:
+        check_whole_rows(done, label)
         return False
     subprocess.run([o.exe, "merge", *path, "-o", out], check=True)
     notes = [json.load(open(q[:-5] + ".note.json")) for q in path]
@@ -132,6 +137,42 @@ def run_tiles(o, cmd, out, n):
     for key in ("not_converged", "lowered_density_caps"):
         print(key + ":", [e for x in notes for e in (x["summary"] or {}).get(key, [])])
     return True
+
+
+def check_nearest(names, label, d, rows):
+    """Prints, for each shape of `rows` (whose distances to all others are in d), whether its
+    nearest shapes are its own copies; returns how many are not."""
+    wrong = 0
+    for i in rows:
+        n = names[i]
+        order = sorted((j for j in range(len(names)) if j != i), key=lambda j: (d[i][j], j))
+        own = sum(1 for m in names if label[m] == label[n]) - 1
+        near = order[:own]
+        ok = all(label[names[j]] == label[n] for j in near)
+        wrong += not ok
+        nearest_other = next(j for j in order if label[names[j]] != label[n])
+        far_own = max(d[i][j] for j in range(len(names)) if j != i and label[names[j]] == label[n])
+        print(f"{n}: {'ok' if ok else 'WRONG'}; farthest own copy {far_own:.4f}, nearest other "
+              f"{names[nearest_other]} {d[i][nearest_other]:.4f}; nearest {[names[j] for j in near]}")
+    return wrong
+
+
+def check_whole_rows(tiles, label):
+    """Before the matrix is whole: the nearest-neighbour check on the shapes whose every pair is in
+    the tiles kept so far (a pair not converged counts as infinitely far)."""
+    names, d = None, None
+    for q in tiles:
+        t = json.load(open(q))
+        if names is None:
+            names = t["names"]
+            d = [[None] * len(names) for _ in names]
+        for i, j, dist, *_ in t["pairs"]:
+            d[i][j] = d[j][i] = math.inf if dist is None else dist
+    if names is None:
+        return
+    whole = [i for i in range(len(names)) if all(d[i][j] is not None for j in range(len(names)) if j != i)]
+    wrong = check_nearest(names, label, d, whole)
+    print(f"{len(whole) - wrong} of the {len(whole)} shapes whose rows are whole have their own copies nearest")
 
 
 def main():
@@ -164,25 +205,14 @@ def main():
         print(f"{len(shapes)} shapes, {summary['pairs']} pairs: {wall:.1f} s, {mb:.0f} MB peak")
         print("not converged:", summary.get("not_converged"), "lowered density caps:",
               summary.get("lowered_density_caps"))
-    elif not run_tiles(o, cmd, out, len(shapes)):
+    elif not run_tiles(o, cmd, out, len(shapes), label):
         sys.exit(3)
     rows = list(csv.reader(open(out)))
     names = rows[0][1:]
     d = [[float(x) for x in r[1:]] for r in rows[1:]]
-    wrong = 0
-    for i, n in enumerate(names):
-        order = sorted((j for j in range(len(names)) if j != i), key=lambda j: (d[i][j], j))
-        own = sum(1 for s in shapes if s[1] == label[n]) - 1
-        near = order[:own]
-        ok = all(label[names[j]] == label[n] for j in near)
-        wrong += not ok
-        nearest_other = next(j for j in order if label[names[j]] != label[n])
-        far_own = max(d[i][j] for j in range(len(names)) if j != i and label[names[j]] == label[n])
-        print(f"{n}: {'ok' if ok else 'WRONG'}; farthest own copy {far_own:.4f}, nearest other "
-              f"{names[nearest_other]} {d[i][nearest_other]:.4f}; nearest {[names[j] for j in near]}")
+    wrong = check_nearest(names, label, d, range(len(names)))
     print(f"{len(names) - wrong} of {len(names)} shapes have their own copies as their nearest neighbours")
     sys.exit(1 if wrong else 0)
-
 
 if __name__ == "__main__":
     main()
