@@ -7,7 +7,8 @@ edge at a random point instead of the squashed one), every pair by `brenier-comp
 The matrix's progress goes to stderr and each shape's maps to WORK_DIR/cache (a second run
 reuses them). Prints the wall time and peak memory of the matrix, its JSON summary (transports not
 converged, lowered density caps), and for every shape whether its three nearest shapes are its
-own copies; exits 1 if one is not.
+own copies (exits 1 if one is not), and whether that is settled where pairs did not converge: a
+pair not converged is not nearer than its transports' duals, which bound its cost from below.
 
 With --tiles K the matrix is computed as K tiles (`matrix --tile I/K`), each kept in --tile-dir
 (default WORK_DIR/tiles) with a note of its wall time, summary and the commit that computed it;
@@ -91,12 +92,16 @@ def commit():
         return "unknown"
 
 
+def tiles_of(o):
+    """The tiles' paths in --tile-dir."""
+    return [os.path.join(o.tile_dir, f"tile-{i:03d}-of-{o.tiles:03d}.json") for i in range(o.tiles)]
+
+
 def run_tiles(o, cmd, out, n, label):
     """Computes the tiles of the matrix not yet in the tile directory, in order, until the
     deadline; merges them into `out` once all are there. Returns whether the matrix is whole."""
-    tile_dir = o.tile_dir or os.path.join(o.work, "tiles")
-    os.makedirs(tile_dir, exist_ok=True)
-    path = [os.path.join(tile_dir, f"tile-{i:03d}-of-{o.tiles:03d}.json") for i in range(o.tiles)]
+    os.makedirs(o.tile_dir, exist_ok=True)
+    path = tiles_of(o)
     start, built_from = time.time(), commit()  # the tree the run started from, as near the binary as it gets
     for i in range(o.tiles):
         if os.path.exists(path[i]):
@@ -126,7 +131,7 @@ def run_tiles(o, cmd, out, n, label):
         os.replace(partial, path[i])
         print(f"tile {i}: {note['seconds']} s", flush=True)
     done = [q for q in path if os.path.exists(q)]
-    print(f"{len(done)} of {o.tiles} tiles in {tile_dir}", flush=True)
+    print(f"{len(done)} of {o.tiles} tiles in {o.tile_dir}", flush=True)
     if len(done) < o.tiles:
         check_whole_rows(done, label)
         return False
@@ -139,40 +144,74 @@ def run_tiles(o, cmd, out, n, label):
     return True
 
 
-def check_nearest(names, label, d, rows):
-    """Prints, for each shape of `rows` (whose distances to all others are in d), whether its
-    nearest shapes are its own copies; returns how many are not."""
-    wrong = 0
+def bounds(names, entries, shifts):
+    """Each pair's distance d (inf where it did not converge), a lower bound lo (d, or where the pair
+    did not converge the larger of its transports' duals, which bound the cost from below: the tile's
+    forward or backward value), and the W2 shift of a lowered density cap (`shifts`, by the summary's
+    pair names; 0 where none). `entries`: (i, j, distance, forward, backward), None where absent."""
+    n = len(names)
+    d, lo, shift = ([[None] * n for _ in range(n)] for _ in range(3))
+    for i, j, dist, forward, backward in entries:
+        duals = [x for x in (forward, backward) if x is not None]
+        d[i][j] = d[j][i] = math.inf if dist is None else dist
+        lo[i][j] = lo[j][i] = dist if dist is not None else max(duals, default=0.0)
+        shift[i][j] = shift[j][i] = shifts.get(f"({names[i]}, {names[j]})", 0.0)
+    return d, lo, shift
+
+
+def check_nearest(names, label, d, lo, shift, rows):
+    """Prints, for each shape of `rows` (whose pairs are all in d), whether its nearest shapes by
+    distance are its own copies, and whether that is settled: every own copy converged and nearer
+    than every other shape's lower bound (so a pair not converged cannot be nearer). Also the
+    row's largest lowered-cap shift, against which that margin can be read. Returns how many are
+    not ok and how many are settled."""
+    wrong = settled = 0
     for i in rows:
         n = names[i]
-        order = sorted((j for j in range(len(names)) if j != i), key=lambda j: (d[i][j], j))
-        own = sum(1 for m in names if label[m] == label[n]) - 1
-        near = order[:own]
+        others = [j for j in range(len(names)) if j != i]
+        order = sorted(others, key=lambda j: (d[i][j], j))
+        own = [j for j in others if label[names[j]] == label[n]]
+        near = order[:len(own)]
         ok = all(label[names[j]] == label[n] for j in near)
         wrong += not ok
-        nearest_other = next(j for j in order if label[names[j]] != label[n])
-        far_own = max(d[i][j] for j in range(len(names)) if j != i and label[names[j]] == label[n])
-        print(f"{n}: {'ok' if ok else 'WRONG'}; farthest own copy {far_own:.4f}, nearest other "
-              f"{names[nearest_other]} {d[i][nearest_other]:.4f}; nearest {[names[j] for j in near]}")
+        far_own = max(d[i][j] for j in own)
+        lowest = min((j for j in others if j not in own), key=lambda j: lo[i][j])
+        sure = far_own < lo[i][lowest]
+        settled += sure
+        print(f"{n}: {'ok' if ok else 'WRONG'}{'' if sure else ', not settled'}; farthest own copy {far_own:.4f}, "
+              f"nearest other {names[lowest]} {'at least ' if d[i][lowest] > lo[i][lowest] else ''}"
+              f"{lo[i][lowest]:.4f}; largest lowered-cap shift in the row {max(shift[i][j] for j in others):.4f}; "
+              f"nearest {[names[j] for j in near]}")
+    return wrong, settled
+
+
+def report(names, label, d, lo, shift, rows, what):
+    wrong, settled = check_nearest(names, label, d, lo, shift, rows)
+    print(f"{len(rows) - wrong} of {len(rows)} shapes{what} have their own copies as their nearest neighbours; "
+          f"settled for {settled} (the pairs not converged counted at their duals' lower bounds)")
     return wrong
+
+
+def tile_bounds(tiles):
+    """names and bounds() of the pairs in the tiles (and their notes) kept so far."""
+    names, entries, shifts = None, [], {}
+    for q in tiles:
+        t = json.load(open(q))
+        names = names or t["names"]
+        entries += [tuple(p[:5]) for p in t["pairs"]]
+        note = json.load(open(q[:-5] + ".note.json"))
+        shifts.update({c["pair"]: c["w2_shift"] for c in (note["summary"] or {}).get("lowered_density_caps", [])})
+    return (names, *bounds(names, entries, shifts)) if names else None
 
 
 def check_whole_rows(tiles, label):
     """Before the matrix is whole: the nearest-neighbour check on the shapes whose every pair is in
-    the tiles kept so far (a pair not converged counts as infinitely far)."""
-    names, d = None, None
-    for q in tiles:
-        t = json.load(open(q))
-        if names is None:
-            names = t["names"]
-            d = [[None] * len(names) for _ in names]
-        for i, j, dist, *_ in t["pairs"]:
-            d[i][j] = d[j][i] = math.inf if dist is None else dist
-    if names is None:
-        return
-    whole = [i for i in range(len(names)) if all(d[i][j] is not None for j in range(len(names)) if j != i)]
-    wrong = check_nearest(names, label, d, whole)
-    print(f"{len(whole) - wrong} of the {len(whole)} shapes whose rows are whole have their own copies nearest")
+    the tiles kept so far."""
+    got = tile_bounds(tiles)
+    if got:
+        names, d, lo, shift = got
+        whole = [i for i in range(len(names)) if all(d[i][j] is not None for j in range(len(names)) if j != i)]
+        report(names, label, d, lo, shift, whole, " whose rows are whole")
 
 
 def main():
@@ -191,13 +230,18 @@ def main():
         ap.error("--tiles must be at least 1")
     if o.deadline is not None and o.tiles == 1:
         ap.error("--deadline needs --tiles (a run stopped mid-matrix keeps nothing)")
+    o.tile_dir = o.tile_dir or os.path.join(o.work, "tiles")
     os.makedirs(o.work, exist_ok=True)
     shapes = copies(o.data, o.work, [x for x in o.meshes.split(",") if x], o.remesh_max)
     label = {os.path.basename(p)[:-4]: c for p, c in shapes}
     out = os.path.join(o.work, "D-sphere.csv")
     cmd = [o.exe, "matrix", *[p for p, _ in shapes], "--method", "wasserstein", "--domain", "sphere",
            "--jobs", str(o.jobs), "--json", "--progress", "--cache", os.path.join(o.work, "cache")]
-    if o.tiles == 1:
+    if o.tiles > 1:
+        if not run_tiles(o, cmd, out, len(shapes), label):
+            sys.exit(3)
+        names, d, lo, shift = tile_bounds(tiles_of(o))
+    else:
         text, wall, mb = measured(cmd + ["-o", out], stream_stderr=True)
         if not text.strip():
             raise SystemExit("the matrix failed")
@@ -205,14 +249,14 @@ def main():
         print(f"{len(shapes)} shapes, {summary['pairs']} pairs: {wall:.1f} s, {mb:.0f} MB peak")
         print("not converged:", summary.get("not_converged"), "lowered density caps:",
               summary.get("lowered_density_caps"))
-    elif not run_tiles(o, cmd, out, len(shapes), label):
-        sys.exit(3)
-    rows = list(csv.reader(open(out)))
-    names = rows[0][1:]
-    d = [[float(x) for x in r[1:]] for r in rows[1:]]
-    wrong = check_nearest(names, label, d, range(len(names)))
-    print(f"{len(names) - wrong} of {len(names)} shapes have their own copies as their nearest neighbours")
-    sys.exit(1 if wrong else 0)
+        rows = list(csv.reader(open(out)))
+        names = rows[0][1:]
+        shifts = {c["pair"]: c["w2_shift"] for c in summary.get("lowered_density_caps", [])}
+        entries = [(i, j, None if math.isnan(float(x)) else float(x), None, None)
+                   for i, r in enumerate(rows[1:]) for j, x in enumerate(r[1:]) if j > i]
+        d, lo, shift = bounds(names, entries, shifts)
+    sys.exit(1 if report(names, label, d, lo, shift, range(len(names)), "") else 0)
+
 
 if __name__ == "__main__":
     main()
