@@ -146,15 +146,16 @@ def run_tiles(o, cmd, out, n, label):
 
 def bounds(names, entries, shifts):
     """Each pair's distance d (inf where it did not converge), a lower bound lo (d, or where the pair
-    did not converge the larger of its transports' duals, which bound the cost from below: the tile's
-    forward or backward value), and the W2 shift of a lowered density cap (`shifts`, by the summary's
-    pair names; 0 where none). `entries`: (i, j, distance, forward, backward), None where absent."""
+    did not converge the smaller of its transports' duals: each bounds its direction's cost from below,
+    and the pair's distance is one direction's or their mean; the tile's forward and backward values),
+    and the W2 shift of a lowered density cap (`shifts`, by the summary's pair names; 0 where none).
+    `entries`: (i, j, distance, forward, backward), None where absent."""
     n = len(names)
     d, lo, shift = ([[None] * n for _ in range(n)] for _ in range(3))
     for i, j, dist, forward, backward in entries:
         duals = [x for x in (forward, backward) if x is not None]
         d[i][j] = d[j][i] = math.inf if dist is None else dist
-        lo[i][j] = lo[j][i] = dist if dist is not None else max(duals, default=0.0)
+        lo[i][j] = lo[j][i] = dist if dist is not None else min(duals, default=0.0)
         shift[i][j] = shift[j][i] = shifts.get(f"({names[i]}, {names[j]})", 0.0)
     return d, lo, shift
 
