@@ -8,7 +8,7 @@ The matrix's progress goes to stderr and each shape's maps to WORK_DIR/cache (a 
 reuses them). Prints the wall time and peak memory of the matrix, its JSON summary (transports not
 converged, lowered density caps), and for every shape whether its three nearest shapes are its
 own copies (exits 1 if one is not), and whether that is settled where pairs did not converge: a
-pair not converged is not nearer than its transports' duals, which bound its cost from below.
+pair not converged is not nearer than the smaller of its transports' duals, lower bounds of their costs.
 
 With --tiles K the matrix is computed as K tiles (`matrix --tile I/K`), each kept in --tile-dir
 (default WORK_DIR/tiles) with a note of its wall time, summary and the commit that computed it;
