@@ -97,7 +97,7 @@ def tiles_of(o):
     return [os.path.join(o.tile_dir, f"tile-{i:03d}-of-{o.tiles:03d}.json") for i in range(o.tiles)]
 
 
-def run_tiles(o, cmd, out, n, label):
+def run_tiles(o, cmd, out, n):
     """Computes the tiles of the matrix not yet in the tile directory, in order, until the
     deadline; merges them into `out` once all are there. Returns whether the matrix is whole."""
     os.makedirs(o.tile_dir, exist_ok=True)
@@ -133,7 +133,6 @@ def run_tiles(o, cmd, out, n, label):
     done = [q for q in path if os.path.exists(q)]
     print(f"{len(done)} of {o.tiles} tiles in {o.tile_dir}", flush=True)
     if len(done) < o.tiles:
-        check_whole_rows(done, label)
         return False
     subprocess.run([o.exe, "merge", *path, "-o", out], check=True)
     notes = [json.load(open(q[:-5] + ".note.json")) for q in path]
@@ -205,16 +204,6 @@ def tile_bounds(tiles):
     return (names, *bounds(names, entries, shifts)) if names else None
 
 
-def check_whole_rows(tiles, label):
-    """Before the matrix is whole: the nearest-neighbour check on the shapes whose every pair is in
-    the tiles kept so far."""
-    got = tile_bounds(tiles)
-    if got:
-        names, d, lo, shift = got
-        whole = [i for i in range(len(names)) if all(d[i][j] is not None for j in range(len(names)) if j != i)]
-        report(names, label, d, lo, shift, whole, " whose rows are whole")
-
-
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("exe")
@@ -239,9 +228,15 @@ def main():
     cmd = [o.exe, "matrix", *[p for p, _ in shapes], "--method", "wasserstein", "--domain", "sphere",
            "--jobs", str(o.jobs), "--json", "--progress", "--cache", os.path.join(o.work, "cache")]
     if o.tiles > 1:
-        if not run_tiles(o, cmd, out, len(shapes), label):
+        whole = run_tiles(o, cmd, out, len(shapes))
+        got = tile_bounds([q for q in tiles_of(o) if os.path.exists(q)])
+        if not whole:  # the check on the shapes whose every pair is in the tiles kept so far
+            if got:
+                names, d, lo, shift = got
+                rows = [i for i in range(len(names)) if all(d[i][j] is not None for j in range(len(names)) if j != i)]
+                report(names, label, d, lo, shift, rows, " whose rows are whole")
             sys.exit(3)
-        names, d, lo, shift = tile_bounds(tiles_of(o))
+        names, d, lo, shift = got
     else:
         text, wall, mb = measured(cmd + ["-o", out], stream_stderr=True)
         if not text.strip():
