@@ -128,10 +128,16 @@ TransportCost transport_cost(const Shape& src, const Shape& dst, double angle, c
 /// vertex images, each coordinate of the frame multiplied by flip (+-1: a half-turn of dst's
 /// principal frame), to dst's cell tolerance; the cost is the Kantorovich dual. Where that
 /// transport does not converge (src a different shape from dst), it is solved again with
-/// src's density held to a tenth, then a hundredth, of its peak (cap_density), and the
-/// result says which cap and bound it took (TransportCost::density_cap). The caps tried are
-/// the levels first..last of: 0 the shape's own density, 1 a tenth, 2 a hundredth of its peak.
-constexpr int kLowestCapLevel = 2;
+/// src's density held to a tenth, then a hundredth, of its peak (cap_density), then to 100
+/// times its mean where that is lower still, and the result says which cap and bound it took
+/// (TransportCost::density_cap). The caps tried are the levels first..last of: 0 the shape's
+/// own density, 1 a tenth, 2 a hundredth of its peak, 3 100 times its mean (sphere_cap). A
+/// level whose cap does not lower the one before is skipped; when no level runs, the result
+/// is not converged with no iterations.
+constexpr int kLowestCapLevel = 3;
+/// The cap of level 1..kLowestCapLevel on src's sphere density; 0 where the level is skipped
+/// (level 3 on densities whose peak is at most 1e4 times their mean).
+double sphere_cap(const Shape& src, int level);
 TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
                                     const omt::Progress& progress, Eigen::VectorXd& h, const Abandon& abandon = {},
                                     int first_level = 0, int last_level = kLowestCapLevel);
@@ -145,10 +151,11 @@ TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Ei
 /// than the other's (Shape::capped_mass), the distance is the direction from the other,
 /// less crowded, density alone, when that converges at the shapes' own caps
 /// (PairResult::source); otherwise both directions at a tenth, then a hundredth of the
-/// peaks, the distance being the mean of those that converged at the first such cap where
-/// one did. Without markers, the second shape is turned by the rotation found by
-/// omt_linear (then refined, see the options). A transport that does not converge makes
-/// converged false with its error, never a silent value.
+/// peaks, then at 100 times the means (the directions whose density that lowers), the
+/// distance being the mean of those that converged at the first such cap where one did.
+/// Without markers, the second shape is turned by the rotation found by omt_linear (then
+/// refined, see the options). A transport that does not converge makes converged false
+/// with its error, never a silent value.
 PairResult wasserstein(const Shape& a, const Shape& b, const WassersteinOptions& options = {});
 
 }  // namespace brenier::distance
