@@ -62,9 +62,11 @@ sanitized() {  # $1: address or thread
     # tests run on small inputs: the multilevel starts (Omt.TheMultilevelStartIsTaken...,
     # Omt.AStalledCoarseToFine...), the stall watch (Omt.AStallWatchFires...), the surface
     # transport on two threads (SurfaceOmt.TheDampedStepsAreTheSameOnOneThreadAsOnTwo) and the
-    # sphere distances (Distance.OnTheSphere..., Distance.SphereShapesWithMergedSites...).
+    # sphere distances (Distance.OnTheSphere..., Distance.SphereShapesWithMergedSites...); the
+    # stalled sphere transports' lower caps run through the same solves.
     local long_numerics='^(Distance\.ASpherePairWithOneCrowdedDensityIsTheTransportFromTheOther'
     long_numerics+='|Distance\.ASphereTransportThatStallsIsSolvedAgainAtALowerCapAndSaysSo'
+    long_numerics+='|Distance\.ASphereDensityFarAboveItsMeanIsSolvedAtAHundredTimesTheMean'
     long_numerics+='|Distance\.ASurfaceTransportThatCreepsStopsAsStalledAfterItsWindow'
     long_numerics+='|SurfaceOmt\.TheMultilevelSolveReachesThePlainSolvesTransport'
     long_numerics+='|Omt\.TheMultilevelSolveReachesThePlainSolvesTransport'

@@ -150,15 +150,16 @@ TransportCost transport_to(const Shape& dst, const omt::Progress& progress, cons
 // armadillo-twisted x man-deformed ended 19-3,330x off after 1,949 Newton iterations. Held to
 // 100 times the mean, the matrix's three such pairs converged (bench/RESULTS.md, sessions 81-82).
 // Level 3 is that cap, tried only where it is below the hundredth: every pair that converged
-// at the earlier levels keeps its value.
+// at the earlier levels keeps its value. A cap not above the mean is skipped at every level:
+// it leaves no room for the mass (cap_density's check; a nearly uniform density's tenth).
 double sphere_cap(const Shape& src, int level) {
   BRENIER_CHECK(src.surface && level >= 1 && level <= kLowestCapLevel, "no sphere cap level " << level);
   const omt::SurfaceDensity& s = *src.surface;
   const double peak = s.density.maxCoeff();
-  if (level < kLowestCapLevel) return peak / (level == 1 ? 10.0 : 100.0);
   const Eigen::VectorXd image = mesh::face_areas(s.faces, s.vertices);
-  const double cap = 100 * s.density.dot(image) / image.sum();
-  return cap < peak / 100 ? cap : 0;
+  const double mean = s.density.dot(image) / image.sum();
+  const double cap = level == 1 ? peak / 10 : level == 2 ? peak / 100 : std::min(100 * mean, peak / 100);
+  return cap > mean && (level < kLowestCapLevel || cap < peak / 100) ? cap : 0;
 }
 
 TransportCost transport_cost_sphere(const Shape& src, const Shape& dst, const Eigen::Vector3d& flip,
