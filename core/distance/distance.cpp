@@ -502,12 +502,15 @@ Eval PairSolver::sphere(int g, double ceiling) {
     if (!use[0] && !use[1]) break;
     Eval next = run(use, level, level);
     iterations += next.iterations;
-    if (!use[0] || !use[1]) {  // the other direction stays as it ended at the level before
-      const int j = use[0] ? 1 : 0;
+    // A level that skips one direction and does not converge either reports both duals: the
+    // skipped direction's as it ended at the level before, if it was solved (its dual, at
+    // heights short of the solution, is a lower bound, as PairBound's).
+    const int j = use[0] ? 1 : 0;
+    if (!(use[0] && use[1]) && !next.converged && !next.abandoned && !std::isnan(j ? e.raw_backward : e.raw_forward)) {
       next.cost[j] = std::move(e.cost[j]);
       next.h[j] = std::move(e.h[j]);
       combine(next, kBoth, 0.0);
-      if (!next.converged) next.lower_bound = next.mean;  // the duals' (as PairBound's at their ends)
+      next.lower_bound = next.mean;
     }
     e = std::move(next);
     for (int j = 0; j < 2 && !e.converged && !e.abandoned; ++j)
