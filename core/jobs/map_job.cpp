@@ -154,6 +154,9 @@ omt::AreaPreservingOptions area_preserving_options(const MapRequest& o, const Su
   apo.refine.enabled = o.refine;
   if (o.refine_mean_tolerance > 0) apo.refine.mean_tolerance = o.refine_mean_tolerance;
   if (o.refine_p95_tolerance > 0) apo.refine.p95_tolerance = o.refine_p95_tolerance;
+  // The refinement after the transport (iteration = Newton step, residual = mean |log area
+  // ratio|), cancellable at each step.
+  apo.refine.keep_going = solver_progress(progress, "area refinement", apo.refine.mean_tolerance, 0.95, 0.98);
   if (progress)
     apo.repair_progress = [progress](int round, int folds) {
       return progress(Progress{"fold repair", 0.95, round + 1, static_cast<double>(folds)});
@@ -271,7 +274,7 @@ MapOutcome run_map(const mesh::CleanMesh& cm, const std::string& what, const Map
                   map.max_curvature_error, map.newton_iterations);
     fail(ErrorCode::kNotConverged, what + buf);
   }
-  if (progress && !progress(Progress{"quality", 0.96, 0, 0})) fail(ErrorCode::kCancelled, "cancelled");
+  if (progress && !progress(Progress{"quality", 0.99, 0, 0})) fail(ErrorCode::kCancelled, "cancelled");
 
   const quality::MapQuality q =
       quality::measure(s.mesh, out.positions, out.disk ? quality::Target::kPlane : quality::Target::kSphere);

@@ -1,6 +1,7 @@
 #include "omt/area_preserving.hpp"
 
 #include <Eigen/Geometry>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <exception>
@@ -8,10 +9,12 @@
 #include <future>
 #include <limits>
 #include <malloc.h>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <system_error>
 #include <utility>
+#include <vector>
 
 #include "common/error.hpp"
 #include "conformal/mobius.hpp"
@@ -81,28 +84,60 @@ bool refines(const AreaPreservingOptions& opt, const AreaPreservingMap& map) {
 // freed scratch between the plan's live blocks, out of the main thread's reach: malloc_trim
 // hands it back (the 100K disk map's peak: 397-433 MB before, 472-500 MB with the thread,
 // 420-422 MB with the trim; bench/RESULTS.md, session 49).
-using PlanAhead = std::future<std::shared_ptr<RefinementPlan>>;
+// A plan whose map ended without it (an error or a cancel thrown past it, or a map not to be
+// refined) is left to finish on its own: a std::async future's destructor would wait for the
+// analysis (2.8 s on the 97K-vertex hemisphere beside a matrix run, where its conformal map
+// took 1.1 s), and a cancelled job's end waited for it: the service's cancel test took
+// 1.03-1.11 s against its one-second bar under load, 0.2 s since (bench/RESULTS.md, session
+// 83). Left plans are dropped once done, at the next plan made ahead or left, and waited for at
+// exit. The make functions own copies of what they read, so that they outlive the map's caller.
+using PlanFuture = std::future<std::shared_ptr<RefinementPlan>>;
+void drop_finished(std::vector<PlanFuture>& left) {
+  std::erase_if(left, [](const PlanFuture& f) {
+    return f.wait_for(std::chrono::seconds(0)) == std::future_status::ready;
+  });
+}
+void leave(PlanFuture f) {
+  static std::mutex mutex;
+  static std::vector<PlanFuture> left;
+  std::lock_guard<std::mutex> lock(mutex);
+  drop_finished(left);
+  if (f.valid()) left.push_back(std::move(f));
+}
+
+class PlanAhead {
+ public:
+  PlanAhead() = default;
+  explicit PlanAhead(PlanFuture f) : f_(std::move(f)) {}
+  PlanAhead(const PlanAhead&) = delete;
+  PlanAhead& operator=(const PlanAhead&) = delete;
+  ~PlanAhead() { leave(std::move(f_)); }
+  std::shared_ptr<RefinementPlan> take() { return f_.valid() ? f_.get() : nullptr; }
+
+ private:
+  PlanFuture f_;
+};
+
 template <class Make>
 PlanAhead plan_ahead(const AreaPreservingOptions& opt, Make make) {
+  leave({});  // (drops the plans left that are done)
   if (!opt.refine.enabled || opt.t != 0) return {};
   try {
-    return std::async(std::launch::async, [make = std::move(make)] {
+    return PlanAhead(std::async(std::launch::async, [make = std::move(make)] {
       std::shared_ptr<RefinementPlan> plan = make();
       malloc_trim(0);
       return plan;
-    });
+    }));
   } catch (const std::system_error&) {
     return {};
   }
 }
 
-std::shared_ptr<RefinementPlan> take(PlanAhead& plan) { return plan.valid() ? plan.get() : nullptr; }
-
 // The sphere map returned, with the face-by-face refinement when it is a bijection.
 AreaPreservingMap refined_on_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt, PlanAhead& plan,
                                     AreaPreservingMap map) {
   if (refines(opt, map) && quality::covers_once(map.degree))
-    map.refinement = refine_sphere_areas(m, face_targets(m, opt), map.positions, opt.refine, take(plan));
+    map.refinement = refine_sphere_areas(m, face_targets(m, opt), map.positions, opt.refine, plan.take());
   return map;
 }
 
@@ -148,7 +183,11 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
   const Eigen::VectorXd nu = weighted_masses(m, opt);
   // (The plan's thread finds the boundary itself: an error there waits for the conformal
   // map's checks of the mesh, which name the problem first.)
-  PlanAhead plan = plan_ahead(opt, [&m, &opt] { return plan_disk_refinement(m, mesh::boundary_flags(m), opt.refine); });
+  PlanAhead plan = plan_ahead(opt, [m, slide = opt.refine.slide_boundary] {
+    AreaRefineOptions o;
+    o.slide_boundary = slide;
+    return plan_disk_refinement(m, mesh::boundary_flags(m), o);
+  });
   // (1) conformal map phi: S -> D (Alg. 1).
   AreaPreservingMap out = starting_from(conformal::map_to_disk(m, opt.conformal));
   // (2) sites p_i = phi(v_i), masses nu_i scaled to the disk's area pi inside solve_omt;
@@ -189,7 +228,7 @@ AreaPreservingMap area_preserving_disk(const mesh::TriMesh& m, const AreaPreserv
     }
   out.relaxed_vertices = conformal::repair_planar_folds(m, out.positions, fixed, out.folded_faces);
   if (refines(opt, out))
-    out.refinement = refine_disk_areas(m, face_targets(m, opt), out.positions, fixed, opt.refine, take(plan));
+    out.refinement = refine_disk_areas(m, face_targets(m, opt), out.positions, fixed, opt.refine, plan.take());
   return out;
 }
 
@@ -374,7 +413,7 @@ bool finish_sphere_map(const mesh::TriMesh& m, const mesh::Vertices& X, const Ar
 AreaPreservingMap area_preserving_sphere(const mesh::TriMesh& m, const AreaPreservingOptions& opt) {
   const int nv = m.num_vertices();
   const Eigen::VectorXd nu = weighted_masses(m, opt);
-  PlanAhead plan = plan_ahead(opt, [&m] { return plan_sphere_refinement(m); });
+  PlanAhead plan = plan_ahead(opt, [m] { return plan_sphere_refinement(m); });
   AreaPreservingMap out = starting_from(conformal::map_to_sphere(m, opt.conformal));
   const mesh::Vertices& X = out.conformal.positions;
   // The start. Long protrusions (legs, tails, fingers) shrink exponentially under the

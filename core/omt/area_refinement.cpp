@@ -10,6 +10,7 @@
 #include <span>
 
 #include "common/check.hpp"
+#include "common/error.hpp"
 #include "common/parallel.hpp"
 #include "mesh/geometry.hpp"
 #include "numeric/face_hessian.hpp"
@@ -505,6 +506,11 @@ constexpr std::array<double, 2> kThetas = {0.999, 0.9999};
 constexpr std::array<double, 5> kFarThetas = {0.98, 0.995, 0.999, 0.9999, 0.99999};
 constexpr double kFarStart = 0.25;
 
+// AreaRefineOptions::keep_going after a Newton step.
+void keep_going(const AreaRefineOptions& opt, int step, double mean) {
+  if (opt.keep_going && !opt.keep_going(step, mean)) fail(ErrorCode::kCancelled, "the area refinement was cancelled");
+}
+
 // Whether a refinement's result meets both of its stated tolerances.
 bool meets(const AreaRefineOptions& opt, const quality::Stats& s) {
   return s.mean <= opt.mean_tolerance && s.p95 <= opt.p95_tolerance;
@@ -555,6 +561,7 @@ void reweighted_rounds(const mesh::TriMesh& m, const Eigen::VectorXd& target, me
       double E = 0;
       const double decrement = newton.step(X, theta, E);
       ++out.iterations;
+      keep_going(opt, out.iterations, best.mean);
       if (!(decrement > 1e-7 * E)) break;
     }
     const quality::Stats s = abs_log_stats(m.F, X, target);
@@ -641,6 +648,7 @@ AreaRefinement refine(const mesh::TriMesh& m, const Eigen::VectorXd& target, mes
       ++out.iterations;
       out.after = abs_log_stats(m.F, X, target);
       out.converged = met(out.after);
+      keep_going(opt, out.iterations, out.after.mean);
       if (min_progress) {
         if (out.after.mean < best.mean || out.converged) {
           best_X = X;

@@ -31,6 +31,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -58,6 +59,11 @@ struct AreaRefineOptions {
   /// |log area ratio| over the faces (area_refinement.cpp); a round's map is kept only where it
   /// is better. 0: none.
   int reweighted_rounds = 15;
+  /// Called after every Newton step with the run's steps so far (the sphere's volume and chord
+  /// runs count from 0 each) and the mean |log area ratio| at the step's map (in a reweighted
+  /// round: the best kept so far); returning false cancels the refinement (Error(kCancelled)).
+  /// The refinement of a 100K-vertex map takes seconds: a job's cancellation must reach it.
+  std::function<bool(int step, double mean)> keep_going;
 };
 
 struct AreaRefinement {

@@ -7,6 +7,7 @@
 // alone.
 #include <gtest/gtest.h>
 
+#include "expect_error.hpp"
 #include "random_draws.hpp"
 
 #include <Eigen/Geometry>
@@ -102,6 +103,16 @@ TEST(AreaRefinement, AFlatDiskPulledRadiallyComesBackToItself) {
       EXPECT_LT((X.row(v) - m.V.row(v)).norm(), 1e-15) << v;  // held (r^0.6 at r = 1 is 1 to an ulp)
     }
   EXPECT_EQ(quality::measure(m, X, quality::Target::kPlane).flipped_faces, 0);
+  // A caller's cancel stops it after the step that asked, the mean it is told falling.
+  X = m.V;
+  for (int v = 0; v < m.num_vertices(); ++v)
+    if (const double r = X.row(v).head<2>().norm(); r > 0) X.row(v).head<2>() *= std::pow(r, 0.6);
+  std::vector<double> told;
+  o.keep_going = [&](int step, double mean) { return told.push_back(mean), step < 3; };
+  EXPECT_ERROR(omt::refine_disk_areas(m, mesh::face_areas(m), X, fixed, o), ErrorCode::kCancelled, "cancelled");
+  ASSERT_EQ(told.size(), 3u);
+  EXPECT_LT(told[0], r.before.mean);
+  EXPECT_LT(told[2], told[0]);
 }
 
 TEST(AreaRefinement, AnIcospherePushedTowardAPoleComesBackToAnIsometry) {
@@ -118,6 +129,14 @@ TEST(AreaRefinement, AnIcospherePushedTowardAPoleComesBackToAnIsometry) {
   EXPECT_TRUE(quality::covers_once(q.degree));
   EXPECT_LT(q.angle_distortion_deg.max, 2.0);
   EXPECT_LT((p.X.rowwise().norm().array() - 1).abs().maxCoeff(), 1e-12);
+  // A caller's cancel reaches the sphere's steps too.
+  mesh::Vertices X = p.m.V;
+  for (int v = 0; v < p.m.num_vertices(); ++v) X.row(v) = (X.row(v) + Eigen::RowVector3d(0, 0, 0.4)).normalized();
+  omt::AreaRefineOptions o;
+  int asked = 0;
+  o.keep_going = [&](int, double) { return ++asked < 2; };
+  EXPECT_ERROR(omt::refine_sphere_areas(p.m, mesh::face_areas(p.m), X, o), ErrorCode::kCancelled, "cancelled");
+  EXPECT_EQ(asked, 2);
 }
 
 TEST(AreaRefinement, ACoarsePolyhedronComesBackThoughItsVolumeChanged) {
