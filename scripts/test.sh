@@ -67,6 +67,7 @@ sanitized() {  # $1: address or thread
     local long_numerics='^(Distance\.ASpherePairWithOneCrowdedDensityIsTheTransportFromTheOther'
     long_numerics+='|Distance\.ASphereTransportThatStallsIsSolvedAgainAtALowerCapAndSaysSo'
     long_numerics+='|Distance\.ASphereDensityFarAboveItsMeanIsSolvedAtAHundredTimesTheMean'
+    long_numerics+='|Distance\.ASpherePairConvergingAtNoCapReportsBothDirectionsDuals'
     long_numerics+='|Distance\.ASurfaceTransportThatCreepsStopsAsStalledAfterItsWindow'
     long_numerics+='|SurfaceOmt\.TheMultilevelSolveReachesThePlainSolvesTransport'
     long_numerics+='|Omt\.TheMultilevelSolveReachesThePlainSolvesTransport'

@@ -749,3 +749,36 @@ TEST(Distance, ASphereDensityFarAboveItsMeanIsSolvedAtAHundredTimesTheMean) {
   EXPECT_FALSE(none.converged);
   EXPECT_EQ(none.iterations, 0);
 }
+
+// A pair that converges at no cap still reports both directions (PairSolver::sphere): where a
+// level runs one direction only (the other's density has no cap below its peak that leaves
+// room for its mass, sphere_cap 0), the one left out keeps its dual from the level before,
+// and the pair's lower bound is the mean of the two. Here a flat density (no cap at any
+// level) and the pinched one, with a transport tolerance that round-off cannot reach and no
+// dual-gap stop: the
+// flat density's direction runs at its own density only (the less crowded one goes first),
+// the pinched one's alone at each lowered cap.
+TEST(Distance, ASpherePairConvergingAtNoCapReportsBothDirectionsDuals) {
+  Shape plain = sphere_shape(peaked_source(3, 0, 1), 300, 8, 0, "plain");
+  Shape crowded = sphere_shape(pinched_source(0.3, 0.01, 1e8), 250, 7, 0.3, "crowded");
+  plain.transport_tolerance = crowded.transport_tolerance = 1e-300;
+  plain.cost_tolerance = crowded.cost_tolerance = 0;  // (nor the dual gap's stop)
+  distance::WassersteinOptions o;
+  o.debias = false;
+  const distance::PairResult r = distance::wasserstein(plain, crowded, o);
+  EXPECT_FALSE(r.converged);
+  EXPECT_TRUE(std::isnan(r.distance));
+  EXPECT_EQ(r.source, -1);
+  ASSERT_FALSE(std::isnan(r.forward));
+  ASSERT_FALSE(std::isnan(r.backward));
+  // The flat density's dual is its own transport's at its own density, as solved alone.
+  Eigen::VectorXd h;
+  const distance::TransportCost alone = distance::transport_cost_sphere(plain, crowded, Eigen::Vector3d::Ones(), {}, h,
+                                                                        {}, 0, 0);
+  EXPECT_FALSE(alone.converged);
+  EXPECT_DOUBLE_EQ(r.forward, std::sqrt(std::max(0.0, alone.w2_squared)));
+  EXPECT_EQ(r.lowered_cap[0], 0);
+  EXPECT_NEAR(r.lowered_cap[1], 100, 1e-9);  // the pinched density's last cap: 100 times its mean 1
+  ASSERT_EQ(r.candidates.size(), 1u);
+  EXPECT_DOUBLE_EQ(r.candidates[0].lower_bound, (r.forward + r.backward) / 2);
+}
