@@ -111,7 +111,12 @@ class PlanAhead {
   explicit PlanAhead(PlanFuture f) : f_(std::move(f)) {}
   PlanAhead(const PlanAhead&) = delete;
   PlanAhead& operator=(const PlanAhead&) = delete;
-  ~PlanAhead() { leave(std::move(f_)); }
+  ~PlanAhead() {
+    try {
+      leave(std::move(f_));
+    } catch (...) {  // (no memory to keep it in: the future's destructor waits, as it did)
+    }
+  }
   std::shared_ptr<RefinementPlan> take() { return f_.valid() ? f_.get() : nullptr; }
 
  private:
