@@ -36,6 +36,21 @@ std::vector<char> boundary_of(const mesh::TriMesh& m) {
   return b;
 }
 
+// The disk's vertices pulled radially, r -> r^1.6 (the boundary unchanged).
+mesh::Vertices pulled_radially(const mesh::Vertices& V) {
+  mesh::Vertices X = V;
+  for (Eigen::Index v = 0; v < X.rows(); ++v)
+    if (const double r = X.row(v).head<2>().norm(); r > 0) X.row(v).head<2>() *= std::pow(r, 0.6);
+  return X;
+}
+
+// The unit sphere's vertices slid toward the north pole: x + push e_z, normalized.
+mesh::Vertices pushed_north(const mesh::Vertices& V, double push) {
+  mesh::Vertices X = V;
+  for (Eigen::Index v = 0; v < X.rows(); ++v) X.row(v) = (X.row(v) + Eigen::RowVector3d(0, 0, push)).normalized();
+  return X;
+}
+
 // The unit icosphere of `level` (its own chord triangles are the targets) with every vertex
 // slid toward the north pole (x + push e_z, normalized), refined to mean 1e-4 / p95 1e-3.
 struct PushedIcosphere {
@@ -48,8 +63,7 @@ PushedIcosphere refine_pushed_icosphere(int level, double push) {
   PushedIcosphere p;
   p.m = mesh::make_icosphere(level);
   for (int v = 0; v < p.m.num_vertices(); ++v) p.m.V.row(v).normalize();
-  p.X = p.m.V;
-  for (int v = 0; v < p.m.num_vertices(); ++v) p.X.row(v) = (p.X.row(v) + Eigen::RowVector3d(0, 0, push)).normalized();
+  p.X = pushed_north(p.m.V, push);
   omt::AreaRefineOptions o;
   o.mean_tolerance = 1e-4;
   o.p95_tolerance = 1e-3;
@@ -82,11 +96,7 @@ TEST(AreaRefinement, AFlatDiskPulledRadiallyComesBackToItself) {
   // the boundary held. The start pulls every vertex radially, r -> r^1.6 (areas off by up to
   // a factor 2.5 near the centre, boundary unchanged).
   mesh::TriMesh m = mesh::make_disk(12);
-  mesh::Vertices X = m.V;
-  for (int v = 0; v < m.num_vertices(); ++v) {
-    const double r = X.row(v).head<2>().norm();
-    if (r > 0) X.row(v).head<2>() *= std::pow(r, 0.6);
-  }
+  mesh::Vertices X = pulled_radially(m.V);
   const std::vector<char> fixed = boundary_of(m);
   omt::AreaRefineOptions o;
   o.slide_boundary = false;  // held: the minimum is the identity itself, not a turn of it
@@ -104,9 +114,7 @@ TEST(AreaRefinement, AFlatDiskPulledRadiallyComesBackToItself) {
     }
   EXPECT_EQ(quality::measure(m, X, quality::Target::kPlane).flipped_faces, 0);
   // A caller's cancel stops it after the step that asked, the mean it is told falling.
-  X = m.V;
-  for (int v = 0; v < m.num_vertices(); ++v)
-    if (const double r = X.row(v).head<2>().norm(); r > 0) X.row(v).head<2>() *= std::pow(r, 0.6);
+  X = pulled_radially(m.V);
   std::vector<double> told;
   o.keep_going = [&](int step, double mean) { return told.push_back(mean), step < 3; };
   EXPECT_ERROR(omt::refine_disk_areas(m, mesh::face_areas(m), X, fixed, o), ErrorCode::kCancelled, "cancelled");
@@ -130,8 +138,7 @@ TEST(AreaRefinement, AnIcospherePushedTowardAPoleComesBackToAnIsometry) {
   EXPECT_LT(q.angle_distortion_deg.max, 2.0);
   EXPECT_LT((p.X.rowwise().norm().array() - 1).abs().maxCoeff(), 1e-12);
   // A caller's cancel reaches the sphere's steps too.
-  mesh::Vertices X = p.m.V;
-  for (int v = 0; v < p.m.num_vertices(); ++v) X.row(v) = (X.row(v) + Eigen::RowVector3d(0, 0, 0.4)).normalized();
+  mesh::Vertices X = pushed_north(p.m.V, 0.4);
   omt::AreaRefineOptions o;
   int asked = 0;
   o.keep_going = [&](int, double) { return ++asked < 2; };
@@ -325,11 +332,7 @@ TEST(AreaRefinement, APlanMadeAheadGivesTheSameMapAndServesOnlyItsOwnMesh) {
   // second thread, and reused for a second refinement: the same map to the last bit as a
   // refinement that makes its own. The pulled disk of AFlatDiskPulledRadially..., boundary sliding.
   const mesh::TriMesh m = mesh::make_disk(12);
-  mesh::Vertices start = m.V;
-  for (int v = 0; v < m.num_vertices(); ++v) {
-    const double r = start.row(v).head<2>().norm();
-    if (r > 0) start.row(v).head<2>() *= std::pow(r, 0.6);
-  }
+  const mesh::Vertices start = pulled_radially(m.V);
   const std::vector<char> fixed = boundary_of(m);
   const omt::AreaRefineOptions o;
   mesh::Vertices own = start;
@@ -357,8 +360,7 @@ TEST(AreaRefinement, APlanMadeAheadGivesTheSameMapAndServesOnlyItsOwnMesh) {
     for (int v = 0; v < ico.num_vertices(); ++v) ico.V.row(v).normalize();
     return ico;
   }();
-  mesh::Vertices A = s.V;
-  for (int v = 0; v < s.num_vertices(); ++v) A.row(v) = (A.row(v) + Eigen::RowVector3d(0, 0, 0.5)).normalized();
+  mesh::Vertices A = pushed_north(s.V, 0.5);
   mesh::Vertices B = A;
   omt::refine_sphere_areas(s, mesh::face_areas(s), A, o);
   omt::refine_sphere_areas(s, mesh::face_areas(s), B, o, omt::plan_sphere_refinement(s));
